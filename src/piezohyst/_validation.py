@@ -1,0 +1,54 @@
+"""Input checks shared by the public API: refuse bad input up front, naming the parameter."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+def as_signal(name: str, value: Any, *, min_length: int = 1) -> FloatArray:
+    """Return ``value`` as a 1-D, finite float64 array or raise naming ``name``."""
+    if isinstance(value, (str, bytes)):
+        raise TypeError(f"{name} must be a 1-D array of numbers, got {type(value).__name__}")
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name} must be a 1-D array of numbers ({exc})") from None
+    if arr.ndim != 1:
+        raise ValueError(f"{name} must be 1-D, got an array of shape {arr.shape}")
+    if arr.size < min_length:
+        raise ValueError(f"{name} needs at least {min_length} sample(s), got {arr.size}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        first = int(np.argmax(bad))
+        raise ValueError(
+            f"{name} contains {int(bad.sum())} non-finite value(s) (NaN or inf), "
+            f"first at index {first}"
+        )
+    return np.ascontiguousarray(arr)
+
+
+def as_scalar(name: str, value: Any, *, positive: bool = False, nonnegative: bool = False) -> float:
+    """Return ``value`` as a finite float or raise naming ``name``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {v}")
+    if positive and v <= 0:
+        raise ValueError(f"{name} must be > 0, got {v}")
+    if nonnegative and v < 0:
+        raise ValueError(f"{name} must be >= 0, got {v}")
+    return v
+
+
+def frozen(arr: FloatArray) -> FloatArray:
+    """A read-only copy, so a model's parameters cannot change under it."""
+    out = np.array(arr, dtype=np.float64, copy=True)
+    out.setflags(write=False)
+    return out

@@ -1,0 +1,254 @@
+"""The Prandtl-Ishlinskii (P-I) hysteresis model, paper eqs. (3)-(4), and its analytic
+inverse, eqs. (12)-(15).
+
+    y(k) = w^T H_r[x, y0](k)                                                 (3)
+    r_i  = (i - 1) / (n + 1) * max|x(t)|,  i = 1..n                          (4)
+
+A note on the paper's printed inverse weights (Section IV-B). Computed exactly by the paper's
+own eqs. (13)-(15) from its own forward weights (Section III-C), the first inverse weight is
+``w'_1 = 1 / w_1 = 1 / 0.616 = 1.623``, not the printed 1.834, and the other printed values do
+not follow either; driving the printed inverse with the forward model's output of a 0-100 V
+sinusoid leaves about 21 V of error (see ``tests/test_pi.py``). This module always *computes*
+the inverse; the printed numbers are kept only in :mod:`piezohyst.paper_values` for that check.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .._validation import FloatArray, as_scalar, as_signal, frozen
+from .play import pi_simulate, pi_step
+
+
+def equal_thresholds(n: int = 20, u_max: float = 100.0) -> FloatArray:
+    """Thresholds of eq. (4): ``r_i = (i - 1) / (n + 1) * u_max`` for ``i = 1..n``.
+
+    Parameters
+    ----------
+    n : int
+        Number of play operators (the paper uses 20).
+    u_max : float
+        ``max |x(t)|`` of the input the model is meant for (the paper: 100 V).
+
+    Examples
+    --------
+    >>> equal_thresholds(4, 100.0)
+    array([ 0., 20., 40., 60.])
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n must be a positive integer, got {n!r}")
+    u_max = as_scalar("u_max", u_max, positive=True)
+    return np.arange(n, dtype=np.float64) / (n + 1) * u_max
+
+
+def _check_thresholds(r: FloatArray) -> None:
+    if r[0] != 0.0:
+        raise ValueError(f"thresholds must start at 0 (r_1 = 0, eq. 3), got r_1 = {r[0]}")
+    steps = np.diff(r)
+    if np.any(steps <= 0):
+        i = int(np.argmax(steps <= 0))
+        raise ValueError(
+            f"thresholds must be strictly increasing (0 = r_1 < r_2 < ... < r_n), "
+            f"but r_{i + 2} = {r[i + 1]} <= r_{i + 1} = {r[i]}"
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class PrandtlIshlinskii:
+    """Prandtl-Ishlinskii hysteresis model, eq. (3), with optional offsets.
+
+    ``y = offset + sum_i w_i H_{r_i}[x - input_offset, y0_i]``. The paper's model is the case
+    ``offset = input_offset = 0``; an output offset is useful for sensors with an arbitrary
+    zero, and the input offset lets the inverse of an offset model be a P-I model too.
+
+    Parameters
+    ----------
+    thresholds : array_like, shape (n,)
+        ``0 = r_1 < r_2 < ... < r_n`` (e.g. from :func:`equal_thresholds`, eq. 4).
+    weights : array_like, shape (n,)
+        ``w_1 .. w_n``; may be negative.
+    initial_state : array_like, shape (n,), optional
+        Operator states ``y0`` (eq. 2). Default: zeros, the de-energised actuator.
+    offset : float
+        Added to the output.
+    input_offset : float
+        Subtracted from the input before the operators.
+
+    Examples
+    --------
+    >>> import piezohyst as ph, numpy as np
+    >>> pi = ph.PrandtlIshlinskii(ph.equal_thresholds(3, 3.0), [1.0, 0.5, 0.25])
+    >>> bool(pi.is_invertible)
+    True
+    >>> u = np.array([0.0, 2.0, 1.0])
+    >>> np.allclose(pi.inverse().simulate(pi.simulate(u)), u)
+    True
+    """
+
+    thresholds: FloatArray
+    weights: FloatArray
+    initial_state: FloatArray = field(default=None)  # type: ignore[assignment]
+    offset: float = 0.0
+    input_offset: float = 0.0
+
+    def __post_init__(self) -> None:
+        r = as_signal("thresholds", self.thresholds)
+        _check_thresholds(r)
+        w = as_signal("weights", self.weights)
+        if w.size != r.size:
+            raise ValueError(
+                f"weights must have one entry per threshold: got {w.size} weights for "
+                f"{r.size} thresholds"
+            )
+        if self.initial_state is None:
+            z0 = np.zeros_like(r)
+        else:
+            z0 = as_signal("initial_state", self.initial_state)
+            if z0.size != r.size:
+                raise ValueError(
+                    f"initial_state must have one entry per threshold: got {z0.size} for "
+                    f"{r.size} thresholds"
+                )
+        object.__setattr__(self, "thresholds", frozen(r))
+        object.__setattr__(self, "weights", frozen(w))
+        object.__setattr__(self, "initial_state", frozen(z0))
+        object.__setattr__(self, "offset", as_scalar("offset", self.offset))
+        object.__setattr__(self, "input_offset", as_scalar("input_offset", self.input_offset))
+
+    # -- identity -------------------------------------------------------------------------
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, PrandtlIshlinskii):
+            return NotImplemented
+        return (
+            np.array_equal(self.thresholds, other.thresholds)
+            and np.array_equal(self.weights, other.weights)
+            and np.array_equal(self.initial_state, other.initial_state)
+            and self.offset == other.offset
+            and self.input_offset == other.input_offset
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return (
+            f"PrandtlIshlinskii(n={self.n}, r=[{self.thresholds[0]:g} .. {self.thresholds[-1]:g}], "
+            f"sum(w)={self.weights.sum():.4g}, offset={self.offset:g}, "
+            f"input_offset={self.input_offset:g})"
+        )
+
+    @property
+    def n(self) -> int:
+        """Number of play operators."""
+        return int(self.thresholds.size)
+
+    # -- simulation -----------------------------------------------------------------------
+    def simulate(self, u: Any) -> FloatArray:
+        """Output of eq. (3) for the input signal ``u``, starting from ``initial_state``."""
+        x = as_signal("u", u)
+        z = np.array(self.initial_state)
+        return pi_simulate(x, self.thresholds, self.weights, z, self.input_offset, self.offset)
+
+    def operator_outputs(self, u: Any) -> FloatArray:
+        """The play-operator outputs ``H_ri[u]`` as an (N, n) array (without the weights)."""
+        from .play import play_outputs
+
+        x = as_signal("u", u) - self.input_offset
+        return play_outputs(np.ascontiguousarray(x), self.thresholds, np.array(self.initial_state))
+
+    def stepper(self) -> "PIStepper":
+        """A streaming evaluator: ``s.step(u_k)`` gives ``y(k)``, on the same kernel."""
+        return PIStepper(self)
+
+    # -- inverse, eqs. (12)-(15) ----------------------------------------------------------
+    @property
+    def partial_sums(self) -> FloatArray:
+        """``S_i = w_1 + ... + w_i``: the slopes of the model's loading curve."""
+        return np.cumsum(self.weights)
+
+    @property
+    def is_invertible(self) -> bool:
+        """True when every partial sum of the weights is > 0 (the condition of eqs. 13-15)."""
+        return bool(np.all(self.partial_sums > 0))
+
+    def inverse(self) -> "PrandtlIshlinskii":
+        """The analytic inverse model, eqs. (12)-(15), itself a :class:`PrandtlIshlinskii`.
+
+        ``r'_i = sum_{j<=i} w_j (r_i - r_j)`` (13),
+        ``y'_0i = sum_{j<=i} w_j y0_i + sum_{j>i} w_j y0_j`` (14),
+        ``w'_1 = 1/w_1``, ``w'_i = -w_i / (S_i S_{i-1})`` (15), with ``S_i`` the partial sums.
+        The offsets swap roles, so ``inverse().simulate(simulate(u)) == u``.
+
+        Raises
+        ------
+        ValueError
+            If a partial sum of the weights is not positive (the model is not invertible).
+        """
+        w, r, y0 = self.weights, self.thresholds, self.initial_state
+        s = self.partial_sums
+        bad = np.flatnonzero(s <= 0)
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(
+                f"model is not invertible: the partial sum of the weights "
+                f"w_1 + ... + w_{i + 1} = {s[i]:.6g} is <= 0 (eqs. 13-15 need every partial "
+                f"sum > 0)"
+            )
+        n = self.n
+        r_inv = np.array([np.dot(w[: i + 1], r[i] - r[: i + 1]) for i in range(n)])
+        # the tail sums sum_{j>i} w_j y0_j, computed once
+        tail = np.concatenate([np.cumsum((w * y0)[::-1])[::-1][1:], [0.0]])
+        y0_inv = s * y0 + tail
+        w_inv = np.empty(n)
+        w_inv[0] = 1.0 / w[0]
+        w_inv[1:] = -w[1:] / (s[1:] * s[:-1])
+        return PrandtlIshlinskii(
+            thresholds=r_inv,
+            weights=w_inv,
+            initial_state=y0_inv,
+            offset=self.input_offset,
+            input_offset=self.offset,
+        )
+
+    def with_state(self, initial_state: Any) -> "PrandtlIshlinskii":
+        """The same model with another initial state (e.g. where a previous run ended)."""
+        return PrandtlIshlinskii(
+            self.thresholds, self.weights, initial_state, self.offset, self.input_offset
+        )
+
+
+class PIStepper:
+    """Streaming P-I evaluation: one input sample in, one output sample out.
+
+    Runs :func:`piezohyst.models.play.pi_step`, the kernel that :meth:`PrandtlIshlinskii.simulate`
+    loops over, so the two give identical outputs.
+    """
+
+    __slots__ = ("model", "_r", "_w", "_z", "_in", "_out")
+
+    def __init__(self, model: PrandtlIshlinskii):
+        self.model = model
+        self._r = model.thresholds
+        self._w = model.weights
+        self._in = model.input_offset
+        self._out = model.offset
+        self._z = np.array(model.initial_state)
+
+    def reset(self) -> None:
+        """Back to the model's initial state."""
+        self._z[:] = self.model.initial_state
+
+    @property
+    def state(self) -> FloatArray:
+        """A copy of the current operator states."""
+        return self._z.copy()
+
+    def step(self, u_k: float) -> float:
+        """Advance by one sample and return the model output."""
+        x = float(u_k)
+        if not math.isfinite(x):
+            raise ValueError(f"u_k must be finite, got {u_k!r}")
+        return float(pi_step(x, self._r, self._w, self._z, self._in, self._out))
