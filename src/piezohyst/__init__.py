@@ -10,12 +10,30 @@ and Particle Swarm Optimization". Equation numbers in docstrings refer to that p
 from __future__ import annotations
 
 from .analysis import LoopFigures, loop_figures
+from .data import DataError, Dataset, load_dataset, load_piezo_dbo, save_dataset
+from .identify import FitResult, fit_bouc_wen, fit_pi
 from .models import BoucWen, BoucWenStepper, PIStepper, PrandtlIshlinskii, equal_thresholds, play_operator
+from .modelio import ModelFileError, load_model, save_model
+from .pso import PSOResult, pso_minimize
+from . import signals
 from .signals import estimate_period, sinusoid
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "DataError",
+    "Dataset",
+    "FitResult",
+    "ModelFileError",
+    "PSOResult",
+    "fit_bouc_wen",
+    "fit_pi",
+    "load_dataset",
+    "load_model",
+    "load_piezo_dbo",
+    "pso_minimize",
+    "save_dataset",
+    "save_model",
     "BoucWen",
     "BoucWenStepper",
     "LoopFigures",

@@ -136,7 +136,13 @@ def build_parser() -> argparse.ArgumentParser:
 _REGISTRY: list[Callable[..., None]] = []
 
 
+def _load_commands() -> None:
+    # importing a command module registers it
+    from . import cli_identify  # noqa: F401
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    _load_commands()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):

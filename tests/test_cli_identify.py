@@ -1,0 +1,72 @@
+import json
+import os
+
+import pytest
+
+import piezohyst as ph
+from piezohyst.cli import main
+
+from .conftest import DATA
+
+DBO = os.path.join(DATA, "piezo-dbo", "Model_Vi_Do.dat")
+
+
+def test_identify_real_data_writes_a_model_that_loads_back(tmp_path, capsys):
+    out = tmp_path / "m.json"
+    code = main(["identify", DBO, "--u-col", "0", "--y-col", "4", "--fs", "200", "--model", "pi",
+                 "--method", "lsq", "-o", str(out), "--json"])
+    assert code == 0
+    printed = json.loads(capsys.readouterr().out)
+    model = ph.load_model(out)
+    assert model.weights.tolist() == printed["parameters"]["weights"]
+    # same model as the Python API gives on the same data
+    ds = ph.load_dataset(DBO, u_col=0, y_col=4, fs=200)
+    assert ph.fit_pi(ds.u, ds.y).model == model
+    # refuses to overwrite without --force
+    assert main(["identify", DBO, "--u-col", "0", "--y-col", "4", "--fs", "200", "-o", str(out)]) == 2
+    assert "--force" in capsys.readouterr().err
+
+
+def test_identify_validation_slices(capsys):
+    code = main(["identify", DBO, "--u-col", "0", "--y-col", "4", "--fs", "200", "--train", "0:4000",
+                 "--validate", "4000:8000", "--json"])
+    assert code == 0
+    v = json.loads(capsys.readouterr().out)["validation"][0]
+    assert v["n_samples"] == 4000 and v["rmse"] < 0.425
+
+
+@pytest.mark.parametrize(
+    "content, args, needle",
+    [
+        ("1 2\n3 4\n", [], "no header"),
+        ("t,u,y\n0,1,2\n1,x,3\n", [], "not a number"),
+        (b"\x89PNG\r\n\x1a\n\x00\x00", [], "not a text file"),
+    ],
+)
+def test_malformed_data_exit_2_one_line(tmp_path, capsys, content, args, needle):
+    p = tmp_path / "bad.dat"
+    if isinstance(content, bytes):
+        p.write_bytes(content)
+    else:
+        p.write_text(content)
+    assert main(["identify", str(p), *args]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and "bad.dat" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_missing_file_exit_2(capsys):
+    assert main(["identify", "/no/such/file.csv"]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_bouc_wen_identify_cli(tmp_path, capsys):
+    u = ph.sinusoid(1.0, 1, 0.0, 100.0, 1e-3)
+    y = ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072).simulate(u, 1e-3) * 1e6
+    ds = ph.Dataset(ph.signals.time_vector(u.size, 1e-3), u, y)
+    f = ph.save_dataset(tmp_path / "bw.csv", ds)
+    assert main(["identify", str(f), "--model", "bouc-wen", "--method", "pso", "--iterations", "30",
+                 "--json", "-o", str(tmp_path / "bw.json")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert "sensitivity" in res["fit"]
+    assert isinstance(ph.load_model(tmp_path / "bw.json"), ph.BoucWen)

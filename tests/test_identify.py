@@ -1,0 +1,123 @@
+"""Identification: fit_pi (lsq, pso) and fit_bouc_wen."""
+
+import numpy as np
+import pytest
+
+import piezohyst as ph
+from piezohyst import paper_values as pv
+
+DT = 1e-4
+
+
+def rich_excitation(n=6000, u_max=100.0):
+    """Sinusoids of decaying amplitude: minor loops that excite every threshold."""
+    t = np.arange(n) / n
+    return u_max * 0.5 * (1 - np.cos(2 * np.pi * 6 * t)) * (1 - 0.8 * t)
+
+
+def test_lsq_recovers_known_weights():
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(8, 100.0), [0.7, 0.2, -0.1, 0.15, 0.05, -0.05, 0.1, 0.02])
+    u = rich_excitation()
+    fit = ph.fit_pi(u, true.simulate(u), n=8, u_max=100.0, fit_offset=False)
+    np.testing.assert_allclose(fit.model.weights, true.weights, atol=1e-6)
+    assert fit.rmse < 1e-9
+
+
+def test_lsq_recovers_paper_weights_and_offset():
+    true = pv.pi_model()
+    u = rich_excitation(8000)
+    y = true.simulate(u) + 3.0
+    fit = ph.fit_pi(u, y, n=20, u_max=100.0)
+    np.testing.assert_allclose(fit.model.weights, true.weights, atol=1e-6)
+    assert fit.model.offset == pytest.approx(3.0, abs=1e-6)
+
+
+def test_lsq_models_are_invertible_even_when_the_data_are_not():
+    # data from a model whose 3rd partial sum is negative: the constrained fit stays invertible
+    bad = ph.PrandtlIshlinskii(ph.equal_thresholds(4, 10.0), [1.0, -0.5, -0.7, 1.0])
+    u = rich_excitation(3000, 10.0)
+    fit = ph.fit_pi(u, bad.simulate(u), n=4, u_max=10.0)
+    assert not bad.is_invertible
+    assert fit.model.is_invertible
+    assert np.all(fit.model.partial_sums >= fit.info["margin"] * (1 - 1e-9))
+
+
+def test_lsq_is_the_optimum_pso_is_not_better(rng):
+    bw = pv.bouc_wen_model()
+    u = ph.sinusoid(1.0, 2, 0.0, 100.0, 5e-4)
+    y = bw.simulate(u, 5e-4) * 1e6 + rng.normal(0, 0.002, u.size)
+    lsq = ph.fit_pi(u, y, n=20, method="lsq")
+    pso = ph.fit_pi(u, y, n=20, method="pso", seed=0)
+    assert lsq.rmse <= pso.rmse * (1 + 1e-9)
+    assert pso.model.is_invertible
+    assert pso.nfev == 40 * 201
+
+
+def test_pso_fit_is_repeatable():
+    u = rich_excitation(2000)
+    y = pv.pi_model().simulate(u)
+    a = ph.fit_pi(u, y, method="pso", seed=3, max_iter=30)
+    b = ph.fit_pi(u, y, method="pso", seed=3, max_iter=30)
+    np.testing.assert_array_equal(a.model.weights, b.model.weights)
+
+
+def test_delay_is_found():
+    true = pv.pi_model()
+    u = rich_excitation(4000)
+    y = np.concatenate([[0.0, 0.0, 0.0], true.simulate(u)[:-3]])  # three samples of sensor lag
+    fit = ph.fit_pi(u, y, n=20, u_max=100.0, delay="auto", max_auto_delay=6)
+    assert fit.delay == 3
+    assert fit.rmse < 1e-8
+
+
+def test_fit_pi_refuses_bad_input():
+    u = np.linspace(0, 1, 100)
+    with pytest.raises(ValueError, match="same length"):
+        ph.fit_pi(u, u[:-1])
+    with pytest.raises(ValueError, match="method"):
+        ph.fit_pi(u, u, method="magic")
+    with pytest.raises(ValueError, match="constant"):
+        ph.fit_pi(np.ones(100), u)
+    with pytest.raises(ValueError, match="negate y"):
+        ph.fit_pi(u, -u)
+    with pytest.raises(ValueError, match="y contains"):
+        ph.fit_pi(u, np.where(u > 0.5, np.nan, u))
+    with pytest.raises(ValueError, match="delay"):
+        ph.fit_pi(u, u, delay=-1)
+
+
+def test_fit_bouc_wen_recovers_the_paper_model():
+    # the paper's model, 1 Hz 0-100 V, 2 nm of sensor noise: d1, alpha, beta within 5 %
+    bw = pv.bouc_wen_model()
+    u = ph.sinusoid(1.0, 2, 0.0, 100.0, DT)
+    y = bw.simulate(u, DT) * 1e6 + np.random.default_rng(1).normal(0, 0.002, u.size)
+    fit = ph.fit_bouc_wen(u, y, DT, seed=0)
+    for name in ("d1", "alpha", "beta"):
+        assert getattr(fit.model, name) == pytest.approx(getattr(bw, name), rel=0.05), name
+    assert fit.rmse < 0.0025  # at the noise floor, um
+    assert fit.info["pso_rmse"] >= fit.rmse
+    # m, b and k only shape a 1.7 kHz resonance that 1 Hz data cannot see
+    assert {"m", "k"} <= set(fit.poorly_constrained)
+    assert "d1" not in fit.poorly_constrained and "beta" not in fit.poorly_constrained
+
+
+def test_fit_bouc_wen_same_seed_same_model():
+    bw = pv.bouc_wen_model()
+    u = ph.sinusoid(1.0, 1, 0.0, 100.0, 1e-3)
+    y = bw.simulate(u, 1e-3) * 1e6
+    a = ph.fit_bouc_wen(u, y, 1e-3, seed=5, max_iter=20, polish=False)
+    b = ph.fit_bouc_wen(u, y, 1e-3, seed=5, max_iter=20, polish=False)
+    assert a.model == b.model and a.nfev == b.nfev
+
+
+def test_fit_bouc_wen_refuses_bad_bounds():
+    u = ph.sinusoid(1.0, 1, 0.0, 100.0, 1e-3)
+    y = u * 0.02
+    with pytest.raises(ValueError, match="unknown Bouc-Wen parameter"):
+        ph.fit_bouc_wen(u, y, 1e-3, bounds={"mass": (1, 2)})
+    with pytest.raises(ValueError, match="low < high"):
+        ph.fit_bouc_wen(u, y, 1e-3, bounds={"alpha": (1, 0)})
+    with pytest.raises(ValueError, match="positive"):
+        ph.fit_bouc_wen(u, y, 1e-3, bounds={"k": (0, 1e8)})
+    with pytest.raises(ValueError, match="dt must be > 0"):
+        ph.fit_bouc_wen(u, y, 0.0)
