@@ -15,12 +15,17 @@ from .identify import FitResult, fit_bouc_wen, fit_pi
 from .models import BoucWen, BoucWenStepper, PIStepper, PrandtlIshlinskii, equal_thresholds, play_operator
 from .modelio import ModelFileError, load_model, save_model
 from .pso import PSOResult, pso_minimize
+from .rig import ClippingWarning, Plant, RigSettings, VirtualRig
 from . import signals
 from .signals import estimate_period, sinusoid
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "ClippingWarning",
+    "Plant",
+    "RigSettings",
+    "VirtualRig",
     "DataError",
     "Dataset",
     "FitResult",

@@ -138,7 +138,7 @@ _REGISTRY: list[Callable[..., None]] = []
 
 def _load_commands() -> None:
     # importing a command module registers it
-    from . import cli_identify  # noqa: F401
+    from . import cli_identify, cli_rig  # noqa: F401
 
 
 def main(argv: Sequence[str] | None = None) -> int:

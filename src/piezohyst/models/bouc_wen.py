@@ -175,21 +175,29 @@ def bw_initial_state(h0: float) -> FloatArray:  # pragma: no cover - compiled
 
 
 @njit
-def bw_step(p: FloatArray, st: FloatArray, u: float) -> float:  # pragma: no cover - compiled
-    """One sample of eqs. (7)-(8): update the state ``st`` in place, return x (m) + offset."""
-    h = bw_h_update(st[1], u - st[0], p[1], p[2], p[3])
-    f = p[0] * u - h
+def mech_step(p: FloatArray, st: FloatArray, f: float) -> float:  # pragma: no cover - compiled
+    """The linear part of eq. (7) over one sample, driven by ``f = d1 u - h`` (metres).
+
+    Updates ``st[2:5]`` (x, scaled velocity, previous forcing) and returns x without offset.
+    Shared by :func:`bw_step` and the virtual rig, so both integrate the same dynamics.
+    """
     x = st[2]
     v = st[3]
     fp = st[4]
     xn = p[4] * x + p[5] * v + p[8] * fp + p[10] * f
-    vn = p[6] * x + p[7] * v + p[9] * fp + p[11] * f
+    st[3] = p[6] * x + p[7] * v + p[9] * fp + p[11] * f
+    st[2] = xn
+    st[4] = f
+    return xn
+
+
+@njit
+def bw_step(p: FloatArray, st: FloatArray, u: float) -> float:  # pragma: no cover - compiled
+    """One sample of eqs. (7)-(8): update the state ``st`` in place, return x (m) + offset."""
+    h = bw_h_update(st[1], u - st[0], p[1], p[2], p[3])
     st[0] = u
     st[1] = h
-    st[2] = xn
-    st[3] = vn
-    st[4] = f
-    return xn + p[12]
+    return mech_step(p, st, p[0] * u - h) + p[12]
 
 
 @njit
