@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/piezohyst models --freq 1,3,5
+	$(VENV)/bin/piezohyst reproduce --out $(OUT) --force
 
 test: $(STAMP)
 	$(PY) -m pytest -q

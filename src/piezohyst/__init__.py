@@ -10,6 +10,7 @@ and Particle Swarm Optimization". Equation numbers in docstrings refer to that p
 from __future__ import annotations
 
 from .analysis import LoopFigures, loop_figures
+from .control import BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult, UnstableLoopError, track
 from .data import DataError, Dataset, load_dataset, load_piezo_dbo, save_dataset
 from .identify import FitResult, fit_bouc_wen, fit_pi
 from .models import BoucWen, BoucWenStepper, PIStepper, PrandtlIshlinskii, equal_thresholds, play_operator
@@ -22,6 +23,12 @@ from .signals import estimate_period, sinusoid
 __version__ = "0.1.0"
 
 __all__ = [
+    "BoucWenFeedforward",
+    "InversePIFeedforward",
+    "PID",
+    "TrackingResult",
+    "UnstableLoopError",
+    "track",
     "ClippingWarning",
     "Plant",
     "RigSettings",

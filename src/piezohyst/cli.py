@@ -29,7 +29,11 @@ class UsageError(Exception):
 def _console(stderr: bool = False):  # type: ignore[no-untyped-def]
     from rich.console import Console
 
-    return Console(stderr=stderr, highlight=False, markup=False)
+    import shutil
+
+    # tables stay readable when the output is piped or captured (no terminal width to ask)
+    width = None if sys.stdout.isatty() else max(shutil.get_terminal_size((140, 24)).columns, 140)
+    return Console(stderr=stderr, highlight=False, markup=False, width=width)
 
 
 def _print_json(obj: Any) -> None:
@@ -138,7 +142,7 @@ _REGISTRY: list[Callable[..., None]] = []
 
 def _load_commands() -> None:
     # importing a command module registers it
-    from . import cli_identify, cli_rig  # noqa: F401
+    from . import cli_control, cli_identify, cli_reproduce, cli_rig  # noqa: F401
 
 
 def main(argv: Sequence[str] | None = None) -> int:

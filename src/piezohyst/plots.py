@@ -37,7 +37,7 @@ def plot_loops(runs: Sequence[tuple[str, Any, Any]], *, ax: Any = None,
     ax.grid(True, alpha=0.3)
     ax.legend()
     if title:
-        ax.set_title(title)
+        ax.set_title(title, fontsize=10)
     return lines
 
 
@@ -52,7 +52,7 @@ def plot_model_vs_measured(u: Any, y_measured: Any, y_model: Any, *, model_name:
     ax.grid(True, alpha=0.3)
     ax.legend()
     if title:
-        ax.set_title(title)
+        ax.set_title(title, fontsize=10)
     return [*a, *b]
 
 
@@ -71,13 +71,13 @@ def plot_tracking(t: Any, reference: Any, output: Any, *, axes: Any = None, titl
     b = ax1.plot(t, y, lw=0.9, color="C0", label="measured")
     ax1.set_ylabel("displacement (µm)")
     ax1.grid(True, alpha=0.3)
-    ax1.legend(loc="upper right")
+    ax1.legend(loc="best", fontsize=9)
     c = ax2.plot(t, y - r, lw=0.8, color="C3")
     ax2.set_xlabel("time (s)")
     ax2.set_ylabel("error (µm)")
     ax2.grid(True, alpha=0.3)
     if title:
-        ax1.set_title(title)
+        ax1.set_title(title, fontsize=10)
     return [*a, *b, *c]
 
 

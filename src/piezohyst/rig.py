@@ -258,6 +258,11 @@ class VirtualRig:
 
     # -- whole runs -------------------------------------------------------------------------
     @property
+    def u_range(self) -> tuple[float, float]:
+        """The amplifier's range, V (lets a loop's anti-windup see the saturation)."""
+        return (self.settings.u_min, self.settings.u_max)
+
+    @property
     def clipped(self) -> int:
         """Commands clipped to the amplifier's range since the last reset."""
         return int(self._st[5])

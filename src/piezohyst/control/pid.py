@@ -1,0 +1,92 @@
+"""Discrete PID with a filtered derivative, anti-windup and output limits.
+
+Where it enters the loop of the paper's Fig. 5 (see :func:`piezohyst.track`): by default its
+output is **added to the desired displacement before the feedforward** (``feedback_at=
+"reference"``), so the feedforward's inverse turns the PID's correction, in µm, into volts. The
+inverse then linearises the loop the PID sees (a plant of gain ~1 µm/µm), its gains are
+dimensionless and carry over between stages of different sensitivity, and the hysteresis is
+compensated for the correction too. With ``feedback_at="command"`` (or with no feedforward) the
+output is in volts and is added to the command.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .._validation import as_scalar
+
+
+class PID:
+    """``u = kp e + ki integral(e) + kd de/dt``, discretised with step ``dt``.
+
+    * integral: backward Euler, ``I += ki dt e``;
+    * derivative: on the error, through a first-order filter of time constant ``tf`` (default
+      ``2 dt``), ``D = tf/(tf+dt) D + kd/(tf+dt) (e - e_prev)``;
+    * output limits ``(u_min, u_max)``: the output is clamped, and while it is clamped the
+      integral does not integrate further in the same direction (conditional integration
+      anti-windup).
+
+    Parameters
+    ----------
+    kp, ki, kd : float
+        Gains (ki in 1/s, kd in s, times the output unit per error unit).
+    dt : float
+        Sample period, s; must equal the plant's.
+    tf : float, optional
+        Derivative filter time constant, s.
+    u_min, u_max : float, optional
+        Output limits.
+    """
+
+    def __init__(self, kp: float = 0.0, ki: float = 0.0, kd: float = 0.0, dt: float = 1e-4, *,
+                 tf: float | None = None, u_min: float = -math.inf, u_max: float = math.inf):
+        self.kp = as_scalar("kp", kp)
+        self.ki = as_scalar("ki", ki)
+        self.kd = as_scalar("kd", kd)
+        self.dt = as_scalar("dt", dt, positive=True)
+        self.tf = as_scalar("tf", tf, positive=True) if tf is not None else 2.0 * self.dt
+        if not (u_min < u_max):
+            raise ValueError(f"u_min must be less than u_max, got {u_min} and {u_max}")
+        self.u_min = float(u_min)
+        self.u_max = float(u_max)
+        self._a = self.tf / (self.tf + self.dt)
+        self._b = self.kd / (self.tf + self.dt)
+        self.reset()
+
+    def reset(self) -> None:
+        self.integral = 0.0
+        self._d = 0.0
+        self._e_prev = 0.0
+        self._first = True
+
+    def step(self, error: float, saturated: int = 0) -> float:
+        """Advance one sample with ``e = reference - measurement``; return the output.
+
+        ``saturated`` is +1 (or -1) when the actuator clipped the last command at its upper (or
+        lower) limit: the integral then does not grow further in that direction.
+        """
+        e = float(error)
+        if not math.isfinite(e):
+            raise ValueError(f"the error must be finite, got {error!r}")
+        if self._first:
+            self._e_prev = e  # no derivative kick on the first sample
+            self._first = False
+        self._d = self._a * self._d + self._b * (e - self._e_prev)
+        self._e_prev = e
+        inc = self.ki * self.dt * e
+        u_try = self.kp * e + self.integral + inc + self._d
+        # conditional integration: no integrating further into a limit (own or the actuator's)
+        pushes_up = inc > 0
+        blocked = (pushes_up and (u_try > self.u_max or saturated > 0)) or (
+            not pushes_up and (u_try < self.u_min or saturated < 0))
+        if not blocked:
+            self.integral += inc
+        u = self.kp * e + self.integral + self._d
+        return min(max(u, self.u_min), self.u_max)
+
+    def settings(self) -> dict[str, float]:
+        return {"kp": self.kp, "ki": self.ki, "kd": self.kd, "dt": self.dt, "tf": self.tf,
+                "u_min": self.u_min, "u_max": self.u_max}
+
+    def __repr__(self) -> str:
+        return f"PID(kp={self.kp:g}, ki={self.ki:g}, kd={self.kd:g}, dt={self.dt:g})"

@@ -1,0 +1,262 @@
+"""Closed-loop tracking (the paper's Fig. 5) and its figures of merit (Tables I and II).
+
+``track`` drives any object that follows the Plant protocol (``dt``, ``reset()``,
+``step(u) -> y``) sample by sample::
+
+    e_k   = r_k - y_{k-1}                  (the latest measurement before u_k is chosen)
+    fb_k  = PID(e_k)                       (0 without feedback)
+    u_k   = FF(r_k + fb_k)                 feedback_at="reference" (default)
+          = FF(r_k) + fb_k                 feedback_at="command"
+          = fb_k                           no feedforward
+    y_k   = plant.step(u_k)
+
+The figures of merit are those of the paper's tables: ``e_max`` (µm), ``e_max`` as a percentage
+of the reference's span, and the RMSE (µm) of ``y - r``, computed over the whole cycles after
+the first (the first is the start-up transient) when the reference repeats.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from .._validation import FloatArray, as_signal
+from ..signals import cycles_after_first, estimate_period
+
+
+class UnstableLoopError(RuntimeError):
+    """The loop diverged: non-finite output, or output far outside any plausible range."""
+
+
+class _Stepper(Protocol):
+    def reset(self) -> None: ...
+
+    def step(self, x: float) -> float: ...  # noqa: E704
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """e_max (µm), e_max % of span, RMSE (µm), over ``samples`` samples."""
+
+    e_max: float
+    e_max_percent: float
+    rmse: float
+    span: float
+    samples: int
+
+    @property
+    def rmse_percent(self) -> float:
+        return 100.0 * self.rmse / self.span if self.span > 0 else float("nan")
+
+
+def tracking_metrics(reference: Any, output: Any, *, period: int | None = None) -> Metrics:
+    """The paper's figures of merit of ``output - reference`` over the cycles after the first."""
+    r = as_signal("reference", reference)
+    y = as_signal("output", output)
+    if r.size != y.size:
+        raise ValueError(f"reference and output must have the same length, got {r.size} and {y.size}")
+    sl = cycles_after_first(r.size, period if period is not None else estimate_period(r))
+    e = y[sl] - r[sl]
+    span = float(np.ptp(r))
+    e_max = float(np.max(np.abs(e)))
+    return Metrics(e_max=e_max, e_max_percent=100.0 * e_max / span if span > 0 else float("nan"),
+                   rmse=float(np.sqrt(np.mean(e**2))), span=span, samples=int(e.size))
+
+
+@dataclass
+class TrackingResult:
+    """A tracking run: time series and the paper's figures of merit.
+
+    Attributes
+    ----------
+    t, reference, output, command, error : ndarray
+        Time (s), desired displacement (µm), measured displacement (µm), command (V) and
+        ``output - reference`` (µm).
+    e_max, e_max_percent, rmse : float
+        Over the whole cycles after the first (see :func:`tracking_metrics`).
+    period : int or None
+        The reference's period in samples, if it repeats.
+    clipped : int or None
+        Commands the plant clipped (if it reports it).
+    """
+
+    t: FloatArray
+    reference: FloatArray
+    output: FloatArray
+    command: FloatArray
+    period: int | None
+    clipped: int | None = None
+    label: str = ""
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.metrics = tracking_metrics(self.reference, self.output, period=self.period)
+
+    @property
+    def error(self) -> FloatArray:
+        return self.output - self.reference
+
+    @property
+    def e_max(self) -> float:
+        return self.metrics.e_max
+
+    @property
+    def e_max_percent(self) -> float:
+        return self.metrics.e_max_percent
+
+    @property
+    def rmse(self) -> float:
+        return self.metrics.rmse
+
+    @property
+    def rmse_percent(self) -> float:
+        return self.metrics.rmse_percent
+
+    def summary(self) -> dict[str, Any]:
+        return {"label": self.label, "e_max_um": self.e_max, "e_max_percent": self.e_max_percent,
+                "rmse_um": self.rmse, "rmse_percent": self.rmse_percent, "span_um": self.metrics.span,
+                "evaluated_samples": self.metrics.samples, "clipped_samples": self.clipped, **{
+                    k: v for k, v in self.info.items() if isinstance(v, (int, float, str, bool)) or v is None}}
+
+    def plot(self, axes: Any = None, title: str | None = None) -> list[Any]:
+        """Desired vs measured displacement and the error over time (cf. the paper's Figs. 6-9)."""
+        from ..plots import plot_tracking
+
+        return plot_tracking(self.t, self.reference, self.output, axes=axes, title=title or self.label)
+
+
+def _describe(feedforward: Any, feedback: Any, feedback_at: str) -> str:
+    parts = [f"feedforward={feedforward!r}" if feedforward is not None else "no feedforward"]
+    if feedback is not None:
+        s = feedback.settings() if hasattr(feedback, "settings") else repr(feedback)
+        parts.append(f"feedback={s} at the {feedback_at}")
+    return ", ".join(parts)
+
+
+def track(
+    plant: Any, reference: Any, feedforward: _Stepper | None = None, feedback: Any = None, *,
+    feedback_at: str = "reference", period: int | None = None, reset: bool = True,
+    divergence_limit: float | None = None, label: str = "",
+) -> TrackingResult:
+    """Make ``plant`` follow ``reference`` with feedforward and/or PID feedback (paper Fig. 5).
+
+    Parameters
+    ----------
+    plant : Plant
+        Anything with ``dt``, ``reset()`` and ``step(u) -> y`` (V in, µm out).
+    reference : array_like
+        Desired displacement, µm, one sample per ``plant.dt``.
+    feedforward : InversePIFeedforward or BoucWenFeedforward, optional
+    feedback : PID, optional
+        Its ``dt`` must equal the plant's.
+    feedback_at : {"reference", "command"}
+        Where the PID's output enters (see :mod:`piezohyst.control.pid`).
+    period : int, optional
+        The reference's period in samples (estimated when omitted).
+    divergence_limit : float, optional
+        Stop with :class:`UnstableLoopError` when |y - r| exceeds this (µm); default ten times
+        the reference's span plus 10 µm. With feedback on, the run also stops when, after the
+        first fifth of it, the error's RMS over 500 samples exceeds the reference's span: an
+        unstable loop on a saturating amplifier does not diverge, it oscillates between the
+        limits.
+
+    Notes
+    -----
+    A plant may also tell its actuator's limits as ``u_range = (low, high)`` volts (VirtualRig
+    does); the PID then stops integrating in the direction of a clipped command (anti-windup
+    on the real saturation, wherever the PID's output enters).
+
+    Returns
+    -------
+    TrackingResult
+    """
+    r = as_signal("reference", reference, min_length=2)
+    dt = getattr(plant, "dt", None)
+    if not isinstance(dt, (int, float)) or not dt > 0:
+        raise TypeError("plant must follow the Plant protocol: a positive float 'dt', reset() and step(u)")
+    if feedback_at not in ("reference", "command"):
+        raise ValueError(f"feedback_at must be 'reference' or 'command', got {feedback_at!r}")
+    if feedback is not None:
+        fdt = getattr(feedback, "dt", None)
+        if fdt is None or not math.isclose(float(fdt), float(dt), rel_tol=1e-9):
+            raise ValueError(f"the feedback controller's dt ({fdt}) does not match the plant's dt ({dt})")
+        feedback.reset()
+    if feedforward is not None:
+        feedforward.reset()
+    if reset:
+        plant.reset()
+    clipped0 = getattr(plant, "clipped", None)
+    limit = divergence_limit if divergence_limit is not None else 10.0 * float(np.ptp(r)) + 10.0
+    n = r.size
+    y = np.empty(n)
+    u = np.empty(n)
+    y_prev = 0.0  # the plant starts at rest
+    # an unstable loop on a saturating plant does not diverge, it oscillates between the limits:
+    # after the start-up, an error as large as the whole motion means the loop is not following
+    span = float(np.ptp(r))
+    window = 500
+    settle = max(n // 5, window)
+    watch_window = feedback is not None and span > 0 and n >= 2 * settle
+    # the plant's actuator limits, if it tells them, drive the PID's anti-windup
+    u_range = getattr(plant, "u_range", None)
+    lo_u, hi_u = (float(u_range[0]), float(u_range[1])) if u_range is not None else (-math.inf, math.inf)
+    sat = 0
+    # ... and a loop that bangs its command between both limits within 200 samples is unstable
+    watch_chatter = feedback is not None and u_range is not None
+    n_lo = n_hi = 0
+    ff_step = feedforward.step if feedforward is not None else None
+    fb_step = feedback.step if feedback is not None else None
+    at_ref = feedback_at == "reference"
+    pstep = plant.step
+    for k in range(n):
+        rk = r[k]
+        fb = fb_step(rk - y_prev, sat) if fb_step is not None else 0.0
+        if ff_step is None:
+            uk = fb
+        elif at_ref:
+            uk = ff_step(rk + fb)
+        else:
+            uk = ff_step(rk) + fb
+        sat = 1 if uk > hi_u else (-1 if uk < lo_u else 0)
+        if watch_chatter:
+            if sat > 0:
+                n_hi += 1
+            elif sat < 0:
+                n_lo += 1
+            if k % 200 == 199:
+                if n_hi >= 10 and n_lo >= 10:
+                    raise UnstableLoopError(
+                        f"the loop oscillates between the amplifier's limits ({n_lo} commands below "
+                        f"{lo_u:g} V and {n_hi} above {hi_u:g} V within samples {k - 199}..{k}) with "
+                        f"{_describe(feedforward, feedback, feedback_at)}; lower the feedback gains"
+                    )
+                n_lo = n_hi = 0
+        yk = float(pstep(uk))
+        if not math.isfinite(yk) or abs(yk - rk) > limit:
+            raise UnstableLoopError(
+                f"the loop went unstable at sample {k} (t = {k * dt:.4g} s): output {yk!r} um against "
+                f"reference {rk:.4g} um, with {_describe(feedforward, feedback, feedback_at)}; "
+                f"lower the feedback gains"
+            )
+        u[k] = uk
+        y[k] = yk
+        y_prev = yk
+        if watch_window and k >= settle and k % window == window - 1:
+            ew = y[k - window + 1: k + 1] - r[k - window + 1: k + 1]
+            rms = float(np.sqrt(np.mean(ew * ew)))
+            if rms > span:
+                raise UnstableLoopError(
+                    f"the loop stopped following: the error's RMS over samples {k - window + 1}..{k} "
+                    f"is {rms:.4g} um, more than the reference's whole span ({span:.4g} um), with "
+                    f"{_describe(feedforward, feedback, feedback_at)}; lower the feedback gains"
+                )
+    clipped = None
+    if clipped0 is not None:
+        clipped = int(getattr(plant, "clipped")) - (0 if reset else int(clipped0))
+    return TrackingResult(t=np.arange(n) * dt, reference=r, output=y, command=u,
+                          period=period if period is not None else estimate_period(r),
+                          clipped=clipped, label=label,
+                          info={"feedback_at": feedback_at if feedback is not None else None})

@@ -1,0 +1,56 @@
+import json
+
+import numpy as np
+import pytest
+
+import piezohyst as ph
+from piezohyst import paper_values as pv
+from piezohyst.cli import main
+
+
+@pytest.fixture
+def pi_model_file(tmp_path):
+    model = ph.PrandtlIshlinskii(ph.equal_thresholds(20, 100.0), np.array(pv.PI_WEIGHTS) * 0.0225)
+    return ph.save_model(model, tmp_path / "pi.json"), model
+
+
+def test_compensate_writes_commands_that_invert_the_model(tmp_path, pi_model_file, capsys):
+    path, model = pi_model_file
+    ref = ph.sinusoid(1.0, 1, 0.2, 2.0, 1e-3)
+    (tmp_path / "ref.csv").write_text("t,x_d\n" + "\n".join(f"{i * 1e-3},{v}" for i, v in enumerate(ref)))
+    assert main(["compensate", "--model", str(path), "--reference", str(tmp_path / "ref.csv"),
+                 "-o", str(tmp_path / "cmd.csv"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["clipped_samples"] == 0
+    cmd = np.loadtxt(tmp_path / "cmd.csv", delimiter=",", comments="#", skiprows=4)
+    np.testing.assert_allclose(model.simulate(cmd[:, 2]), ref, atol=1e-9)
+    assert (tmp_path / "cmd.csv").read_text().startswith("# piezohyst")
+
+
+def test_compensate_refuses_out_of_range_command(tmp_path, pi_model_file, capsys):
+    path, _ = pi_model_file
+    (tmp_path / "ref.csv").write_text("t,x_d\n0,0.5\n0.001,9.0\n")
+    code = main(["compensate", "--model", str(path), "--reference", str(tmp_path / "ref.csv"), "-o", str(tmp_path / "c.csv")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "leaves the amplifier range" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "c.csv").exists()
+    # --clip clips and says how many
+    assert main(["compensate", "--model", str(path), "--reference", str(tmp_path / "ref.csv"),
+                 "-o", str(tmp_path / "c.csv"), "--clip", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["clipped_samples"] == 1
+
+
+def test_track_with_a_saved_model(tmp_path, capsys):
+    rig = ph.VirtualRig(seed=0)
+    ds = rig.excite(ph.sinusoid(1.0, 2, 0.0, 100.0, rig.dt))
+    path = ph.save_model(ph.fit_pi(ds.u, ds.y).model, tmp_path / "m.json")
+    assert main(["track", "--model", str(path), "--freq", "1,5", "--cycles", "2", "--feedback", "pid",
+                 "--ki", "500", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)["results"]
+    assert [r["freq_hz"] for r in res] == [1.0, 5.0]
+    assert all(r["e_max_percent"] < 5 for r in res)
+
+
+def test_track_needs_a_model(capsys):
+    assert main(["track", "--freq", "1"]) == 2
+    assert "--model" in capsys.readouterr().err

@@ -1,0 +1,134 @@
+"""Feedforward (eqs. 10, 12-15), PID and track() (Fig. 5)."""
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import piezohyst as ph
+from piezohyst import paper_values as pv
+from piezohyst.control.tracking import tracking_metrics
+
+from .plants import FirstOrderPlant, PIPlant, QuasiStaticBoucWenPlant, UnboundedIntegrator
+
+
+def test_inverse_pi_feedforward_tracks_a_pi_plant_exactly():
+    model = ph.PrandtlIshlinskii(ph.equal_thresholds(20, 100.0), np.array(pv.PI_WEIGHTS) * 0.02)
+    plant = PIPlant(model, dt=1e-3)
+    ref = ph.sinusoid(1.0, 3, 0.1, 1.9, plant.dt)
+    out = ph.track(plant, ref, ph.InversePIFeedforward(model))
+    assert out.e_max < 1e-9
+    np.testing.assert_allclose(out.output, ref, atol=1e-9)
+
+
+def test_bouc_wen_feedforward_cancels_the_quasi_static_model():
+    # eq. (10) with h_hat from eq. (8) solved as the command is produced: exact on d1 u - h
+    bw = ph.BoucWen(**{**pv.BOUC_WEN, "gamma": 0.02})
+    plant = QuasiStaticBoucWenPlant(bw, dt=1e-3)
+    ref = ph.sinusoid(2.0, 3, 0.2, 1.8, plant.dt)
+    out = ph.track(plant, ref, ph.BoucWenFeedforward(bw))
+    assert out.e_max < 1e-9
+
+
+def test_feedforward_streaming_equals_whole_signal():
+    bw = pv.bouc_wen_model()
+    ref = ph.sinusoid(3.0, 1, 0.1, 1.9, 1e-4)
+    for ff in (ph.BoucWenFeedforward(bw), ph.InversePIFeedforward(ph.fit_pi(*_rig_record()).model)):
+        whole = ff.command(ref)
+        ff.reset()
+        np.testing.assert_array_equal(np.array([ff.step(v) for v in ref]), whole)
+
+
+def _rig_record():
+    rig = ph.VirtualRig(seed=0)
+    ds = rig.excite(ph.sinusoid(1.0, 2, 0.0, 100.0, 1e-3 if False else rig.dt))
+    return ds.u, ds.y
+
+
+def test_pid_drives_first_order_plant_to_step_with_zero_steady_state_error():
+    plant = FirstOrderPlant(gain=2.0, tau=0.05, dt=1e-3, disturbance=0.3)
+    ref = np.ones(3000)
+    out = ph.track(plant, ref, feedback=ph.PID(kp=0.5, ki=20.0, kd=0.0, dt=plant.dt))
+    assert abs(out.output[-1] - 1.0) < 1e-6
+    # P alone leaves a steady-state error: the integral is what removes it
+    p_only = ph.track(plant, ref, feedback=ph.PID(kp=0.5, dt=plant.dt))
+    assert abs(p_only.output[-1] - 1.0) > 0.05
+
+
+def test_pid_output_limits_and_anti_windup():
+    pid = ph.PID(kp=1.0, ki=100.0, dt=1e-3, u_min=-1.0, u_max=1.0)
+    outs = [pid.step(10.0) for _ in range(1000)]
+    assert max(outs) == 1.0
+    # conditional integration: the integral did not wind up while saturated, so the output
+    # leaves the limit as soon as the error changes sign
+    assert pid.integral <= 1.0 + 1e-12
+    assert pid.step(-2.0) < 1.0
+
+
+def test_pid_derivative_is_filtered_and_has_no_kick():
+    pid = ph.PID(kd=1.0, dt=1e-3, tf=1e-2)
+    assert pid.step(5.0) == 0.0  # first sample: no derivative kick
+    d1 = pid.step(6.0)
+    assert 0 < d1 < 1.0 / 1e-3  # filtered: less than the raw difference quotient
+
+
+@given(kp=st.floats(0, 5), ki=st.floats(0, 50), e=st.lists(st.floats(-10, 10), min_size=1, max_size=50))
+def test_pid_respects_limits(kp, ki, e):
+    pid = ph.PID(kp=kp, ki=ki, dt=1e-2, u_min=-2.0, u_max=3.0)
+    assert all(-2.0 <= pid.step(v) <= 3.0 for v in e)
+
+
+def test_track_refuses_mismatched_dt():
+    plant = FirstOrderPlant(dt=1e-3)
+    with pytest.raises(ValueError, match="dt"):
+        ph.track(plant, np.ones(10), feedback=ph.PID(ki=1.0, dt=1e-4))
+
+
+def test_track_refuses_a_non_plant():
+    with pytest.raises(TypeError, match="Plant protocol"):
+        ph.track(object(), np.ones(10))
+
+
+def test_unstable_loop_stops_with_the_settings_in_the_message():
+    plant = UnboundedIntegrator(dt=1e-3)
+    with pytest.raises(ph.UnstableLoopError, match=r"'kp': 50\.0"):
+        ph.track(plant, np.ones(2000), feedback=ph.PID(kp=50.0, dt=plant.dt))
+
+
+def test_unstable_loop_on_the_saturating_rig_is_caught():
+    rig = ph.VirtualRig(seed=0)
+    ref = ph.sinusoid(5.0, 3, 0.25, 2.25, rig.dt)
+    with pytest.raises(ph.UnstableLoopError, match="ki"):
+        ph.track(rig, ref, feedback=ph.PID(kp=0.0, ki=1e6, dt=rig.dt))
+
+
+def test_metrics_are_the_papers_over_cycles_after_the_first():
+    period = 100
+    ref = np.tile(np.sin(np.linspace(0, 2 * np.pi, period, endpoint=False)), 4) + 1.0
+    out = ref.copy()
+    out[10] += 5.0  # a start-up transient in the first cycle: not counted
+    out[250] += 0.2
+    m = tracking_metrics(ref, out, period=period)
+    assert m.e_max == pytest.approx(0.2)
+    assert m.e_max_percent == pytest.approx(100 * 0.2 / np.ptp(ref))
+    assert m.rmse == pytest.approx(np.sqrt(0.2**2 / 300))
+    assert m.samples == 300
+
+
+def test_feedback_improves_tracking_on_the_rig():
+    rig = ph.VirtualRig(seed=0)
+    ds = rig.excite(ph.sinusoid(1.0, 2, 0.0, 100.0, rig.dt))
+    ff = ph.InversePIFeedforward(ph.fit_pi(ds.u, ds.y).model)
+    ref = ph.sinusoid(3.0, 3, 0.25, 2.25, rig.dt)
+    alone = ph.track(rig, ref, ff)
+    with_pid = ph.track(rig, ref, ff, ph.PID(ki=500.0, dt=rig.dt))
+    assert with_pid.rmse < alone.rmse and with_pid.e_max < alone.e_max
+    assert alone.clipped == 0
+
+
+def test_non_invertible_model_is_refused_by_the_feedforward():
+    bad = ph.PrandtlIshlinskii(ph.equal_thresholds(3, 10.0), [1.0, -2.0, 0.5])
+    with pytest.raises(ValueError, match="not invertible"):
+        ph.InversePIFeedforward(bad)
+    with pytest.raises(TypeError):
+        ph.BoucWenFeedforward(bad)
