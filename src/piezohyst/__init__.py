@@ -10,9 +10,11 @@ and Particle Swarm Optimization". Equation numbers in docstrings refer to that p
 from __future__ import annotations
 
 from .analysis import LoopFigures, loop_figures
+from .commission import CommissionedController, commission
 from .control import BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult, UnstableLoopError, track
 from .data import DataError, Dataset, load_dataset, load_piezo_dbo, save_dataset
-from .identify import FitResult, fit_bouc_wen, fit_pi
+from .identify import FitResult, fit_bouc_wen, fit_pi, fit_rate_pi
+from .models.rate_pi import RateDependentPI
 from .models import BoucWen, BoucWenStepper, PIStepper, PrandtlIshlinskii, equal_thresholds, play_operator
 from .modelio import ModelFileError, load_model, save_model
 from .pso import PSOResult, pso_minimize
@@ -23,6 +25,10 @@ from .signals import estimate_period, sinusoid
 __version__ = "0.1.0"
 
 __all__ = [
+    "CommissionedController",
+    "RateDependentPI",
+    "commission",
+    "fit_rate_pi",
     "BoucWenFeedforward",
     "InversePIFeedforward",
     "PID",

@@ -48,6 +48,7 @@ class TuningResult:
 def tune_integral_feedback(
     plant: Any, feedforward: Any, *, level: float, hold_s: float = 0.3, ki_start: float = 5.0,
     factor: float = 1.5, growth: float = 3.0, gain_margin: float = 3.0, ki_max: float = 1e5,
+    feedback_at: str = "reference", output_scale: float = 1.0,
 ) -> TuningResult:
     """Find the ultimate integral gain on ``plant`` and return ``ki = ki_u / gain_margin``.
 
@@ -58,6 +59,10 @@ def tune_integral_feedback(
         The feedforward the PID will run with (the loop it tunes is feedback around it).
     level : float
         Desired displacement to hold, µm (mid-range of the task).
+    feedback_at, output_scale
+        Where the PID's output enters (see :func:`~piezohyst.control.tracking.track`) and a
+        factor on its gains (e.g. 1/slope in V/µm for feedback at the command): the returned
+        ``ki`` is before that factor.
     """
     n = max(int(round(hold_s / plant.dt)), 20)
     ref = np.full(n, float(level))
@@ -67,7 +72,8 @@ def tune_integral_feedback(
     ki_u = None
     while ki <= ki_max:
         try:
-            out = track(plant, ref, feedforward, PID(0.0, ki, 0.0, plant.dt), period=None)
+            out = track(plant, ref, feedforward, PID(0.0, ki * output_scale, 0.0, plant.dt), period=None,
+                        feedback_at=feedback_at)
             e = out.error[n // 2:]
             rms = float(np.sqrt(np.mean((e - e.mean()) ** 2)))
         except UnstableLoopError:
