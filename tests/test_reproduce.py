@@ -29,6 +29,9 @@ def test_reproduce_writes_tables_figures_and_report(tmp_path, capsys):
         assert f"({fname})" in report  # embedded
     assert [c["claim"] for c in res["claims"]]  # each claim stated with its verdict
     assert all(isinstance(c["holds"], bool) for c in res["claims"])
+    # the third table and the ablation (issue #7)
+    assert len(res["table_piezohyst"]) == 6 and "Table III" in report and "Ablation" in report
+    assert set(res["ablation"]) >= {"paper_pso_pi_ff", "lsq_pi_ff", "rate_pi_ff", "rate_pi_ff_fb", "rate_pi_ff_fb_ilc"}
     # the whole run fits the 2-minute budget with room to spare (a generous bound, not a benchmark)
     assert res["time_s"] < 120
     # refuses to overwrite without --force
@@ -36,7 +39,7 @@ def test_reproduce_writes_tables_figures_and_report(tmp_path, capsys):
 
 
 def test_same_seed_same_tables():
-    kw = dict(seed=3, freqs=(1.0, 5.0), cycles=2, pso_bw=(10, 15), pso_pi=(20, 50))
+    kw = dict(seed=3, freqs=(1.0, 5.0), cycles=2, pso_bw=(10, 15), pso_pi=(20, 50), beyond=False)
     a = run_paper_experiment(**kw)
     b = run_paper_experiment(**kw)
     assert a.table("pi") == b.table("pi")

@@ -23,7 +23,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     else:
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-        total = 3 + 1 + 2 + 2 + 3 * 4
+        total = 3 + 1 + 2 + 2 + 3 * 4 + 1 + 3
         with Progress(TextColumn("{task.description:<55}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                       TimeElapsedColumn(), console=_console(stderr=True), transient=True) as bar:
             task = bar.add_task("starting", total=total)
@@ -76,6 +76,25 @@ def _print_tables(exp, written) -> None:  # type: ignore[no-untyped-def]
         con.print(t)
         tu = exp.tuning[m]
         con.print(f"  PID around it: kp={tu.kp:g}, ki={tu.ki:.4g} 1/s, kd={tu.kd:g} ({tu.method})")
+    if exp.ablation:
+        t = Table(title="Table III - piezohyst: best feedforward alone and with feedback (targets of issue #7)")
+        for c in ("Excitation", "e_max µm", "e_max %", "target", "RMSE µm", "RMSE %", "target", "met"):
+            t.add_column(c, justify="left" if c == "Excitation" else "right")
+        for r in exp.table_piezohyst():
+            t.add_row(r["excitation"], f"{r['e_max_um']:.4f}", f"{r['e_max_percent']:.2f}", f"<= {r['target_e_max_percent']:g}",
+                      f"{r['rmse_um']:.4f}", f"{r['rmse_percent']:.2f}", f"<= {r['target_rmse_percent']:g}",
+                      "yes" if r["meets_target"] else "NO")
+        con.print(t)
+        from .experiments.paper import ABLATION
+
+        t = Table(title="Ablation: e_max % of span / RMSE nm, each row adds one means")
+        t.add_column("configuration")
+        for f in exp.freqs:
+            t.add_column(f"{f:g} Hz", justify="right")
+        for key, name in ABLATION.items():
+            t.add_row(name, *(f"{exp.ablation[key][f].e_max_percent:.2f} / {1e3 * exp.ablation[key][f].rmse:.1f}"
+                              for f in exp.freqs))
+        con.print(t)
     t = Table(title="Identified Bouc-Wen parameters (PSO) beside the paper's")
     for c in ("", "m (kg)", "b (N s/m)", "k (N/m)", "d1 (m/V)", "alpha", "beta (1/V)", "gamma (1/V)"):
         t.add_column(c, justify="right")

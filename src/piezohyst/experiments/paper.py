@@ -43,6 +43,14 @@ from ..rig import VirtualRig
 from ..signals import sinusoid
 
 MODELS = ("bouc-wen", "pi")
+#: The ablation of ``piezohyst reproduce``: each configuration adds one means to the one before.
+ABLATION = {
+    "paper_pso_pi_ff": "paper: PSO P-I (eq. 4), inverse feedforward",
+    "lsq_pi_ff": "+ least-squares P-I (global optimum), same 1 Hz record",
+    "rate_pi_ff": "+ rate-dependent P-I from the commissioning run (input lag, creep/rate lags, delay preview)",
+    "rate_pi_ff_fb": "+ integral feedback tuned on the plant",
+    "rate_pi_ff_fb_ilc": "+ iterative learning (repeating reference)",
+}
 MODEL_TITLES = {"bouc-wen": "Table I - Bouc-Wen hysteresis-estimate feedforward (eq. 10)",
                 "pi": "Table II - inverse P-I feedforward (eqs. 12-15)"}
 PAPER_TABLES = {"bouc-wen": pv.TABLE_I, "pi": pv.TABLE_II}
@@ -65,6 +73,26 @@ class PaperExperiment:
     runs: dict[tuple[str, float, bool], TrackingResult]
     time_s: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
+    #: beyond the paper: config -> freq -> run (see ABLATION)
+    ablation: dict[str, dict[float, TrackingResult]] = field(default_factory=dict)
+    commissioned: Any = None
+
+    def table_piezohyst(self) -> list[dict[str, Any]]:
+        """Table III: piezohyst's best feedforward alone and with feedback, against issue #7's targets."""
+        rows = []
+        for f in self.freqs:
+            for fb, key, target in ((False, "rate_pi_ff", (2.0, 0.6)), (True, "rate_pi_ff_fb_ilc", (1.0, 0.3))):
+                run = self.ablation[key][f]
+                paper = pv.TABLE_II.get((int(f), fb)) if float(f).is_integer() else None
+                rows.append({
+                    "excitation": f"{f:g}-Hz ({'feedforward+feedback' if fb else 'feedforward'})", "freq_hz": f,
+                    "feedback": fb, "e_max_um": run.e_max, "e_max_percent": run.e_max_percent, "rmse_um": run.rmse,
+                    "rmse_percent": run.rmse_percent, "target_e_max_percent": target[0],
+                    "target_rmse_percent": target[1],
+                    "meets_target": run.e_max_percent <= target[0] and run.rmse_percent <= target[1],
+                    "paper_e_max_percent": paper[1] if paper else None, "clipped_samples": run.clipped,
+                })
+        return rows
 
     def table(self, model: str) -> list[dict[str, Any]]:
         """Rows of Table I (``"bouc-wen"``) or II (``"pi"``), ours beside the paper's."""
@@ -138,6 +166,10 @@ class PaperExperiment:
                     for m, t in self.tuning.items()},
             "table_I": self.table("bouc-wen"), "table_II": self.table("pi"),
             "claims": self.claims(), "time_s": self.time_s,
+            **({"table_piezohyst": self.table_piezohyst(),
+                "ablation": {k: {f"{f:g}": r.summary() for f, r in v.items()} for k, v in self.ablation.items()},
+                "commissioned": self.commissioned.describe() if self.commissioned is not None else None}
+               if self.ablation else {}),
         }
 
 
@@ -145,7 +177,7 @@ def run_paper_experiment(
     plant: Any = None, *, seed: int = 0, freqs: tuple[float, ...] = (1.0, 3.0, 5.0), cycles: int = 4,
     reference_range: tuple[float, float] = (0.25, 2.25), u_range: tuple[float, float] = (0.0, 100.0),
     pso_bw: tuple[int, int] = (40, 200), pso_pi: tuple[int, int] = (100, 3000),
-    on_step: Callable[[str], None] | None = None,
+    on_step: Callable[[str], None] | None = None, beyond: bool = True,
 ) -> PaperExperiment:
     """Run the paper's experiment (module docstring) and return everything it measured.
 
@@ -211,10 +243,30 @@ def run_paper_experiment(
                 runs[(m, f, fb)] = track(plant, ref, ff, pid, period=period,
                                          label=f"{f:g} Hz, {m} {'feedforward + feedback' if fb else 'feedforward'}")
     timings["tracking_s"] = time.perf_counter() - t0
+    ablation: dict[str, dict[float, TrackingResult]] = {}
+    ctl = None
+    if beyond:
+        from ..commission import commission
+
+        t0 = time.perf_counter()
+        say("piezohyst: commissioning (identification run, fit, tuning)")
+        ctl = commission(plant, seed=seed, u_range=u_range)
+        lsq_ff = InversePIFeedforward(pi_lsq.model)
+        for f in freqs:
+            say(f"piezohyst: ablation at {f:g} Hz")
+            ref = sinusoid(f, cycles, low, high, dt)
+            period = int(round(1 / (f * dt)))
+            ablation.setdefault("paper_pso_pi_ff", {})[f] = runs[("pi", f, False)]
+            ablation.setdefault("lsq_pi_ff", {})[f] = track(plant, ref, lsq_ff, period=period)
+            ablation.setdefault("rate_pi_ff", {})[f] = ctl.track(ref, feedback=False, learning=False, period=period)
+            ablation.setdefault("rate_pi_ff_fb", {})[f] = ctl.track(ref, learning=False, period=period)
+            ablation.setdefault("rate_pi_ff_fb_ilc", {})[f] = ctl.track(ref, period=period)
+        timings["beyond_s"] = time.perf_counter() - t0
     return PaperExperiment(
         seed=seed, plant_description=repr(plant), freqs=tuple(freqs), reference_range=(low, high),
         loops=loops, identification_data=ident, bw_fit=bw_fit, pi_fit=pi_fit, pi_lsq_rmse=pi_lsq.rmse,
         tuning=tuning, runs=runs, time_s=time.perf_counter() - t_start, timings=timings,
+        ablation=ablation, commissioned=ctl,
     )
 
 
@@ -290,6 +342,30 @@ def report_markdown(exp: PaperExperiment) -> str:
         if clipped:
             L += [f"Commands clipped at the amplifier's range in these runs: {clipped} samples in all "
                   "(each run's count is in results.json).", ""]
+    if exp.ablation:
+        L += ["## Table III - piezohyst (beyond the paper)", "",
+              "Best feedforward alone: the exact inverse of a rate-dependent P-I model identified by least squares on "
+              "a 9.5 s commissioning run. With feedback: plus integral feedback tuned on the plant and iterative learning "
+              "(`piezohyst.commission`). Targets from issue #7.", "",
+              "| Excitation | e_max (µm) | e_max % | target % | paper % (Table II) | RMSE (µm) | RMSE % | target % | met |",
+              "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+        for r in exp.table_piezohyst():
+            L.append(f"| {r['excitation']} | {r['e_max_um']:.4f} | {r['e_max_percent']:.2f} | {r['target_e_max_percent']:g} | "
+                     f"{_fmt(r['paper_e_max_percent'], '.1f')} | {r['rmse_um']:.4f} | {r['rmse_percent']:.2f} | "
+                     f"{r['target_rmse_percent']:g} | {'yes' if r['meets_target'] else 'NO'} |")
+        d = exp.commissioned.describe()
+        L += ["", f"Commissioning took {d['commissioning_time_s']:.1f} s; the fit chose an input lag of "
+              f"{1e3 * d['input_tau_s']:.2g} ms and a delay of {d['delay_samples']} sample(s); ki = {d['ki']:.4g} 1/s.", "",
+              "### Ablation: what each means contributes (e_max % of span / RMSE nm)", "",
+              "| configuration | " + " | ".join(f"{f:g} Hz" for f in exp.freqs) + " |",
+              "|---|" + "---:|" * len(exp.freqs)]
+        for key, name in ABLATION.items():
+            cells = [f"{exp.ablation[key][f].e_max_percent:.2f} % / {1e3 * exp.ablation[key][f].rmse:.1f}" for f in exp.freqs]
+            L.append(f"| {name} | " + " | ".join(cells) + " |")
+        L += ["", "Sensor noise on the rig is "
+              "3 nm RMS, so an RMSE near 3 nm and an e_max near 4-5 sigma (0.6-0.75 % of a 2 µm span) is the floor "
+              "any controller reaches when judged by the same sensor. Where a means adds nothing it is because the error "
+              "is already at that floor.", ""]
     L += ["## The paper's claims, checked", ""]
     for c in exp.claims():
         L.append(f"- **{c['claim']}**: {'holds' if c['holds'] else 'does NOT hold'} on the rig.")

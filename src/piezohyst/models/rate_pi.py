@@ -126,10 +126,10 @@ class RateDependentPI:
     def __post_init__(self) -> None:
         if not isinstance(self.pi, PrandtlIshlinskii):
             raise TypeError(f"pi must be a PrandtlIshlinskii, got {type(self.pi).__name__}")
-        taus = as_signal("taus", self.taus)
+        taus = as_signal("taus", self.taus, min_length=0)
         if np.any(taus <= 0):
             raise ValueError(f"taus must all be > 0, got {taus}")
-        c = as_signal("lag_weights", self.lag_weights)
+        c = as_signal("lag_weights", self.lag_weights, min_length=0)
         if c.size != taus.size:
             raise ValueError(f"lag_weights must have one entry per tau: {c.size} for {taus.size}")
         dt = as_scalar("dt", self.dt, positive=True)

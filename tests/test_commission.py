@@ -1,0 +1,118 @@
+"""Beyond the paper (issue #7): each means improves the figure it is for, inside one run."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+import piezohyst as ph
+from piezohyst.cli import main
+
+from .plants import PIPlant
+
+
+@pytest.fixture(scope="module")
+def rig_and_controller():
+    rig = ph.VirtualRig(seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ph.ClippingWarning)
+        ctl = ph.commission(rig)
+    return rig, ctl
+
+
+def ref(freq, rig, cycles=4):
+    return ph.sinusoid(freq, cycles, 0.25, 2.25, rig.dt)
+
+
+def test_least_squares_beats_pso_for_feedforward(rig_and_controller):
+    rig, _ = rig_and_controller
+    ds = rig.excite(ph.sinusoid(1.0, 2, 0.0, 100.0, rig.dt))
+    lsq = ph.fit_pi(ds.u, ds.y)
+    pso = ph.fit_pi(ds.u, ds.y, method="pso", seed=0)
+    r = ref(1.0, rig)
+    a = ph.track(rig, r, ph.InversePIFeedforward(lsq.model))
+    b = ph.track(rig, r, ph.InversePIFeedforward(pso.model))
+    assert lsq.rmse < pso.rmse and a.rmse < b.rmse
+
+
+def test_rate_dependent_model_beats_rate_independent_at_5hz(rig_and_controller):
+    rig, ctl = rig_and_controller
+    ds = ctl.identification
+    plain = ph.fit_pi(ds.u, ds.y, delay=ctl.delay)
+    r = ref(5.0, rig)
+    a = ctl.track(r, feedback=False, learning=False)
+    b = ph.track(rig, r, ph.InversePIFeedforward(plain.model))
+    assert a.rmse < 0.5 * b.rmse
+    assert ctl.fit.rmse < plain.rmse
+
+
+def test_feedback_improves_on_feedforward(rig_and_controller):
+    rig, ctl = rig_and_controller
+    r = ref(3.0, rig)
+    assert ctl.track(r, learning=False).rmse < ctl.track(r, feedback=False, learning=False).rmse
+
+
+def test_learning_reduces_the_error_of_a_mismatched_model():
+    # the rate-independent P-I model on a plant with rate dependence, no feedback: the only
+    # thing that can remove the rate error is learning from one cycle to the next
+    rig = ph.VirtualRig(seed=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ph.ClippingWarning)
+        ctl = ph.commission(rig, tune=False)
+    crude = ph.fit_rate_pi(ctl.identification.u, ctl.identification.y, rig.dt, taus=[], input_taus=[0.0], delay=0)
+    ctl.fit = crude
+    out = ctl.track(ref(5.0, rig, cycles=8), feedback=False, learning=True)
+    rms = out.info["cycle_rms_um"]
+    assert rms[-1] < 0.5 * rms[0]
+    no_learning = ctl.track(ref(5.0, rig, cycles=8), feedback=False, learning=False)
+    assert out.rmse < no_learning.rmse
+
+
+def test_goal_figures_on_the_default_rig(rig_and_controller):
+    # issue #7's table, default seed, the paper's 1/3/5 Hz sinusoids
+    rig, ctl = rig_and_controller
+    for f in (1.0, 3.0, 5.0):
+        ff = ctl.track(ref(f, rig), feedback=False, learning=False)
+        fb = ctl.track(ref(f, rig))
+        assert ff.e_max_percent <= 2.0 and ff.rmse_percent <= 0.6, f
+        assert fb.e_max_percent <= 1.0 and fb.rmse_percent <= 0.3, f
+
+
+@pytest.mark.parametrize("variant", [dict(seed=11), dict(gamma=0.03), dict(creep_scale=2.0), dict(noise_rms_um=0.006)])
+def test_rigs_it_was_not_tuned_on_stay_within_twice_the_goal(variant):
+    seed = variant.pop("seed", 0)
+    rig = ph.VirtualRig(seed=seed, **variant)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ph.ClippingWarning)
+        ctl = ph.commission(rig)
+    for f in (1.0, 5.0):
+        ff = ctl.track(ref(f, rig), feedback=False, learning=False)
+        fb = ctl.track(ref(f, rig))
+        assert ff.e_max_percent <= 4.0 and ff.rmse_percent <= 1.2
+        assert fb.e_max_percent <= 2.0 and fb.rmse_percent <= 0.6
+
+
+def test_commission_works_on_any_plant():
+    # a plant that is not a VirtualRig (no excite, no u_range): a pure P-I model
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(20, 100.0), np.linspace(0.03, -0.0005, 20))
+    plant = PIPlant(true, dt=1e-3)
+    ctl = ph.commission(plant, u_range=(0.0, 100.0), tune=False)
+    out = ctl.track(ph.sinusoid(2.0, 3, 0.5, 2.5, plant.dt), feedback=False, learning=False)
+    assert out.rmse < 1e-3
+
+
+def test_commission_refuses_a_non_plant():
+    with pytest.raises(TypeError, match="Plant protocol"):
+        ph.commission(object())
+
+
+def test_track_best_cli_with_variants(capsys):
+    assert main(["track", "--method", "best", "--freq", "1,5", "--seed", "2", "--rig-gamma", "0.02",
+                 "--rig-noise-scale", "1.5", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["rig"]["gamma"] == 0.02
+    assert res["rig"]["noise_rms_um"] == pytest.approx(0.0045)
+    assert [r["freq_hz"] for r in res["results"]] == [1.0, 5.0]
+    assert all(r["e_max_percent"] < 2.0 for r in res["results"])
+    assert res["controller"]["delay_samples"] >= 0
