@@ -115,6 +115,39 @@ def _pair(u: Any, y: Any, delay: int) -> tuple[FloatArray, FloatArray]:
     return np.ascontiguousarray(us), np.ascontiguousarray(ys)
 
 
+def bounded_lstsq(a: FloatArray, y: FloatArray, lb: FloatArray, ub: FloatArray) -> FloatArray:
+    """``argmin ||a x - y||`` subject to ``lb <= x <= ub``: the global optimum of a convex problem.
+
+    The tall problem is reduced to a square one of the same optimum,
+    ``||a x - y||^2 = ||R x - R^-T a'y||^2 + const`` with ``a'a = R'R`` (Cholesky of the Gram
+    matrix of the unit-norm columns; a QR factorisation instead when that Gram matrix is too
+    ill-conditioned to trust), and the bounded solver (BVLS) works on that square system: tens
+    of times faster for long records than BVLS on the tall one.
+    """
+    import scipy.linalg as sl
+    from scipy.optimize import lsq_linear
+
+    norms = np.linalg.norm(a, axis=0)
+    norms[norms == 0] = 1.0
+    an = a / norms
+    gram = an.T @ an
+    rmat = None
+    try:
+        rmat = sl.cholesky(gram, lower=False)
+        d = np.abs(np.diag(rmat))
+        if d.min() < 1e-7 * d.max():  # cond(gram) beyond ~1e14: precision would be lost
+            rmat = None
+    except np.linalg.LinAlgError:
+        rmat = None
+    if rmat is not None:
+        rhs = sl.solve_triangular(rmat, an.T @ y, trans="T")
+    else:
+        q, rmat = np.linalg.qr(an, mode="reduced")
+        rhs = q.T @ y
+    res = lsq_linear(rmat, rhs, bounds=(lb * norms, ub * norms), method="bvls", tol=1e-12)
+    return np.asarray(res.x / norms)
+
+
 def pi_regressors(u: FloatArray, thresholds: FloatArray) -> FloatArray:
     """The play-operator outputs from the de-energised state: the columns of the linear P-I fit."""
     return play_outputs(u, thresholds, np.zeros(thresholds.size))
@@ -205,8 +238,6 @@ def fit_pi(
     info: dict[str, Any] = {"n_operators": nr, "margin": margin}
 
     if method == "lsq":
-        from scipy.optimize import lsq_linear
-
         # y = Z w + c with w = D s, s the partial sums: column i of Z D is z_i - z_{i+1}
         zd = z.copy()
         zd[:, :-1] -= z[:, 1:]
@@ -214,16 +245,11 @@ def fit_pi(
         a = np.hstack(cols)
         lb = np.full(a.shape[1], -np.inf)
         lb[:nr] = margin
-        ub = np.full(a.shape[1], np.inf)
-        # scale columns for a well-conditioned solve; bounds scale with them
-        norms = np.linalg.norm(a, axis=0)
-        norms[norms == 0] = 1.0
-        res = lsq_linear(a / norms, ys, bounds=(lb * norms, ub * norms), method="bvls", tol=1e-12)
-        sol = res.x / norms
+        sol = bounded_lstsq(a, ys, lb, np.full(a.shape[1], np.inf))
         s = sol[:nr]
         w = np.diff(np.concatenate([[0.0], s]))
         offset = float(sol[nr]) if fit_offset else 0.0
-        nit, nfev, history, message = int(res.nit), None, None, str(res.message)
+        nit, nfev, history, message = None, None, None, "bounded least squares (BVLS after QR): global optimum"
         info["active_constraints"] = int(np.sum(s <= margin * (1 + 1e-9)))
     else:
         # eq. (9) for the whole swarm from the Gram matrix: RMSE^2 = w'Gw - 2b'w + c
@@ -466,8 +492,6 @@ __all__: Sequence[str] = ("FitResult", "fit_pi", "fit_bouc_wen", "default_bouc_w
 def _lsq_pi_with_lags(v: FloatArray, y: FloatArray, r: FloatArray, lags: FloatArray, margin: float,
                       fit_offset: bool) -> tuple[FloatArray, FloatArray, float, float]:
     """Bounded least squares for [partial sums of w | lag weights | offset]; returns w, c, offset, rmse."""
-    from scipy.optimize import lsq_linear
-
     z = pi_regressors(v, r)
     nr = r.size
     zd = z.copy()
@@ -476,10 +500,7 @@ def _lsq_pi_with_lags(v: FloatArray, y: FloatArray, r: FloatArray, lags: FloatAr
     a = np.hstack(cols)
     lb = np.full(a.shape[1], -np.inf)
     lb[:nr] = margin
-    norms = np.linalg.norm(a, axis=0)
-    norms[norms == 0] = 1.0
-    res = lsq_linear(a / norms, y, bounds=(lb * norms, np.full(a.shape[1], np.inf)), method="bvls", tol=1e-10)
-    sol = res.x / norms
+    sol = bounded_lstsq(a, y, lb, np.full(a.shape[1], np.inf))
     w = np.diff(np.concatenate([[0.0], sol[:nr]]))
     c = sol[nr:nr + lags.shape[1]]
     offset = float(sol[-1]) if fit_offset else 0.0

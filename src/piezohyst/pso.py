@@ -80,21 +80,24 @@ def compute_velocity(
     inertia: float, c1: float, c2: float, vmax: FloatArray, rng: np.random.Generator,
 ) -> FloatArray:
     """Eq. (5) for the whole swarm, then clamped to ``[-vmax, vmax]`` per dimension."""
-    r1 = rng.random(x.shape)
-    r2 = rng.random(x.shape)
-    new = inertia * v + c1 * r1 * (pbest - x) + c2 * r2 * (gbest - x)
-    np.clip(new, -vmax, vmax, out=new)
+    r = rng.random((2, *x.shape))  # r1 then r2: the same stream as two separate draws
+    new = inertia * v
+    new += c1 * r[0] * (pbest - x)
+    new += c2 * r[1] * (gbest - x)
+    np.minimum(new, vmax, out=new)
+    np.maximum(new, -vmax, out=new)
     return new
 
 
 def apply_bounds(x: FloatArray, v: FloatArray, lb: FloatArray, ub: FloatArray) -> None:
     """Put particles that left the box back on the bound and zero their outward velocity (in place)."""
     low = x < lb
-    high = x > ub
-    if low.any() or high.any():
+    if low.any():
         np.copyto(x, np.broadcast_to(lb, x.shape), where=low)
-        np.copyto(x, np.broadcast_to(ub, x.shape), where=high)
         v[low & (v < 0)] = 0.0
+    high = x > ub
+    if high.any():
+        np.copyto(x, np.broadcast_to(ub, x.shape), where=high)
         v[high & (v > 0)] = 0.0
 
 
@@ -155,7 +158,8 @@ class ParticleSwarm:
         else:
             f = np.array([float(self._fun(row)) for row in x])
         self.nfev += self.n
-        f = np.where(np.isfinite(f), f, np.inf)
+        if not np.isfinite(f).all():
+            f = np.where(np.isfinite(f), f, np.inf)
         return f
 
     def step(self) -> None:
@@ -168,9 +172,9 @@ class ParticleSwarm:
         apply_bounds(self.x, self.v, self.lb, self.ub)
         f = self._evaluate(self.x)
         better = f < self.pbest_f
-        self.pbest[better] = self.x[better]
-        self.pbest_f[better] = f[better]
-        i = int(np.argmin(self.pbest_f))
+        np.copyto(self.pbest, self.x, where=better[:, None])
+        np.copyto(self.pbest_f, f, where=better)
+        i = int(self.pbest_f.argmin())
         if self.pbest_f[i] < self.gbest_f:
             self.gbest_f = float(self.pbest_f[i])
             self.gbest = self.pbest[i].copy()
