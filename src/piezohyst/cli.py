@@ -142,7 +142,7 @@ _REGISTRY: list[Callable[..., None]] = []
 
 def _load_commands() -> None:
     # importing a command module registers it
-    from . import cli_control, cli_identify, cli_reproduce, cli_rig  # noqa: F401
+    from . import cli_benchmark, cli_control, cli_identify, cli_reproduce, cli_rig  # noqa: F401
 
 
 def main(argv: Sequence[str] | None = None) -> int:
