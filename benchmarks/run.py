@@ -61,7 +61,6 @@ def fmt_t(s):
 
 # ------------------------------------------------------------------------------------------------
 def bench_pi_simulate():
-    import piezohyst as ph
     from piezohyst import paper_values as pv
 
     model = pv.pi_model()

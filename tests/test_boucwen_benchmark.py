@@ -9,7 +9,7 @@ from scipy.integrate import solve_ivp
 
 from piezohyst.cli import main
 from piezohyst.experiments.boucwen_benchmark import TRUE, best_linear_approximation, identify
-from piezohyst.models.bouc_wen_structural import StructuralBoucWen, simulate_structural, upsample_bandlimited
+from piezohyst.models.bouc_wen_structural import StructuralBoucWen, upsample_bandlimited
 
 from .conftest import DATA
 

@@ -36,6 +36,7 @@ __all__ = [
     "UnstableLoopError",
     "track",
     "ClippingWarning",
+    "signals",
     "Plant",
     "RigSettings",
     "VirtualRig",

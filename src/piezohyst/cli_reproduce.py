@@ -11,7 +11,7 @@ from .cli_rig import add_rig_options, rig_from_args
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from ._fileio import atomic_write_text, check_writable
-    from .experiments.paper import FIGURES, MODEL_TITLES, MODELS, report_markdown, run_paper_experiment, write_figures
+    from .experiments.paper import FIGURES, report_markdown, run_paper_experiment, write_figures
 
     out = Path(args.out) if args.out else None
     if out is not None:  # refuse before an expensive run, not after

@@ -34,7 +34,6 @@ import numpy as np
 from .. import paper_values as pv
 from ..analysis import LoopFigures, loop_figures
 from ..control.feedforward import BoucWenFeedforward, InversePIFeedforward
-from ..control.pid import PID
 from ..control.tracking import TrackingResult, track
 from ..control.tuning import TuningResult, tune_integral_feedback
 from ..data import Dataset
@@ -322,7 +321,7 @@ def report_markdown(exp: PaperExperiment) -> str:
     """A short report: tables beside the paper's, identified parameters, claims, figures."""
     from .._fileio import producer
 
-    L = [f"# The paper's experiment on the virtual rig", "",
+    L = ["# The paper's experiment on the virtual rig", "",
          f"<!-- {producer()} -->", "",
          f"Plant: `{exp.plant_description}`. Seed {exp.seed}. Desired trajectory: sinusoids from "
          f"{exp.reference_range[0]:g} to {exp.reference_range[1]:g} µm; figures of merit over the cycles after the first. "
