@@ -7,7 +7,7 @@ from scipy.linalg import expm
 
 import piezohyst as ph
 from piezohyst import paper_values as pv
-from piezohyst.models.bouc_wen import bw_h_update, expm_small
+from piezohyst.models.bouc_wen import bw_h_update, expm_small, solve_ivp_reference
 
 DT = 1e-4
 
@@ -29,31 +29,11 @@ def test_resonance_of_paper_parameters():
     assert bw.damping_ratio == pytest.approx(27.96 / (2 * np.sqrt(8.54e7 * 0.75)))
 
 
-def _reference_solve_ivp(bw, u, dt):
-    """Eqs. (7)-(8) as one ODE in (x, v, h), input linear between samples, scipy LSODA."""
-    t = np.arange(u.size) * dt
-    slopes = np.diff(u) / dt
-
-    def rhs(tt, s):
-        x, v, h = s
-        i = min(int(tt / dt), u.size - 2)
-        du = slopes[i]
-        uu = u[i] + du * (tt - t[i])
-        dh = bw.alpha * bw.d1 * du - bw.beta * abs(du) * h - bw.gamma * du * abs(h)
-        a = (bw.k * (bw.d1 * uu - h) - bw.b * v - bw.k * x) / bw.m
-        return [v, a, dh]
-
-    sol = solve_ivp(rhs, (0.0, t[-1]), [0.0, 0.0, 0.0], method="LSODA", t_eval=t,
-                    rtol=1e-10, atol=[1e-16, 1e-12, 1e-16], max_step=dt)
-    assert sol.success
-    return sol.y[0], sol.y[2]
-
-
 @pytest.mark.parametrize("gamma", [0.0, 0.03])
 def test_simulate_matches_solve_ivp_within_1nm(gamma):
     bw = ph.BoucWen(**{**pv.BOUC_WEN, "gamma": gamma})
     u = ph.sinusoid(2.0, 1, 0.0, 100.0, DT)
-    x_ref, h_ref = _reference_solve_ivp(bw, u, DT)
+    x_ref, h_ref = solve_ivp_reference(bw, u, DT)
     x = bw.simulate(u, DT)
     assert np.abs(x - x_ref).max() < 1e-9  # metres: 1 nm
     assert np.abs(bw.hysteresis(u) - h_ref).max() < 1e-11

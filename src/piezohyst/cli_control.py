@@ -26,35 +26,12 @@ def feedforward_for(model: Any):  # type: ignore[no-untyped-def]
 
 def load_reference(path: str, ref_col: Any, t_col: Any, fs: float | None) -> tuple[np.ndarray, np.ndarray]:
     """A desired trajectory (µm) from a text/CSV file, with its time vector."""
-    from .data import DataError
+    from .data import DataError, read_table
 
     p = Path(path)
     if not p.exists():
         raise DataError(f"{p}: no such file")
-    try:
-        lines = [ln for ln in p.read_text(encoding="utf-8").splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    except UnicodeDecodeError:
-        raise DataError(f"{p}: not a text file") from None
-    if not lines:
-        raise DataError(f"{p}: no data")
-    delim = "," if "," in lines[0] else None
-    first = [c.strip() for c in (lines[0].split(delim) if delim else lines[0].split())]
-
-    def num(c: str) -> bool:
-        try:
-            float(c)
-            return True
-        except ValueError:
-            return False
-
-    header = not all(num(c) for c in first)
-    names = first if header else [str(i) for i in range(len(first))]
-    try:
-        arr = np.array([[float(c) for c in (ln.split(delim) if delim else ln.split())] for ln in (lines[1:] if header else lines)])
-    except ValueError:
-        raise DataError(f"{p}: a value is not a number") from None
-    if arr.ndim != 2 or arr.shape[0] < 2 or arr.shape[1] != len(names):
-        raise DataError(f"{p}: expected at least 2 rows of {len(names)} columns")
+    names, arr, header = read_table(p)
     low = [n.lower().split("_")[0].split(" ")[0] for n in names]
 
     def pick(given: Any, aliases: tuple[str, ...]) -> int | None:
@@ -71,17 +48,15 @@ def load_reference(path: str, ref_col: Any, t_col: Any, fs: float | None) -> tup
                 return low.index(a)
         return None
 
-    ir = pick(ref_col, ("x", "reference", "ref", "desired", "y", "xd", "x_d"))
+    ir = pick(ref_col, ("x", "reference", "ref", "desired", "y", "xd"))
+    it = pick(t_col, ("t", "time"))
     if ir is None:
         if arr.shape[1] == 1:
             ir = 0
         elif arr.shape[1] == 2 and not header:
-            ir = 1
+            it, ir = 0, 1  # a bare two-column file: time, reference
         else:
             raise DataError(f"{p}: cannot tell which column is the desired displacement; give --ref-col")
-    it = pick(t_col, ("t", "time"))
-    if it is None and not header and arr.shape[1] == 2 and t_col is None:
-        it = 0
     ref = arr[:, ir]
     if not np.all(np.isfinite(ref)):
         raise DataError(f"{p}: the reference contains NaN or inf")

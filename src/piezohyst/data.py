@@ -136,8 +136,13 @@ def _pick(names: list[str], key: str, given: Any, path: Path) -> int | None:
     return None
 
 
-def _read_text(path: Path, t_col: Any, u_col: Any, y_col: Any, fs: float | None,
-               delimiter: str | None) -> Dataset:
+def read_table(path: Path, delimiter: str | None = None) -> tuple[list[str], np.ndarray, bool]:
+    """A numeric text table: (column names, rows x columns array, whether it had a header).
+
+    ``#`` lines are comments; the delimiter (comma, tab, semicolon or whitespace) is detected
+    from the first data line unless given. Every problem is a :class:`DataError` naming the file
+    and the line.
+    """
     try:
         with open(path, encoding="utf-8") as fh:
             lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")]
@@ -146,22 +151,20 @@ def _read_text(path: Path, t_col: Any, u_col: Any, y_col: Any, fs: float | None,
     if not lines:
         raise DataError(f"{path}: no data (the file is empty or only comments)")
     if delimiter is None:
-        delimiter = "," if "," in lines[0] else ("\t" if "\t" in lines[0] and ";" not in lines[0] else None)
-        if delimiter is None and ";" in lines[0]:
-            delimiter = ";"
+        first_line = lines[0]
+        delimiter = ("," if "," in first_line else ";" if ";" in first_line else "\t" if "\t" in first_line else None)
 
     def split(line: str) -> list[str]:
-        return [c for c in (line.split(delimiter) if delimiter else line.split())]
+        return line.split(delimiter) if delimiter else line.split()
 
-    first = split(lines[0])
-
-    def is_number(s: str) -> bool:
+    def is_number(text: str) -> bool:
         try:
-            float(s)
+            float(text)
             return True
         except ValueError:
             return False
 
+    first = split(lines[0])
     has_header = not all(is_number(c) for c in first if c.strip())
     body = lines[1:] if has_header else lines
     names = [c.strip() for c in first] if has_header else [str(i) for i in range(len(first))]
@@ -176,13 +179,17 @@ def _read_text(path: Path, t_col: Any, u_col: Any, y_col: Any, fs: float | None,
             raise DataError(f"{path}: line {lineno} has a value that is not a number: {line.strip()[:60]!r}") from None
     if len(rows) < 2:
         raise DataError(f"{path}: needs at least 2 samples, found {len(rows)}")
-    arr = np.array(rows)
-    if not has_header:
-        if u_col is None or y_col is None:
-            raise DataError(
-                f"{path}: the file has no header; say which columns hold the input and the "
-                f"output (u_col=, y_col=, 0-based; {arr.shape[1]} columns) and give fs= or t_col="
-            )
+    return names, np.array(rows), has_header
+
+
+def _read_text(path: Path, t_col: Any, u_col: Any, y_col: Any, fs: float | None,
+               delimiter: str | None) -> Dataset:
+    names, arr, has_header = read_table(path, delimiter)
+    if not has_header and (u_col is None or y_col is None):
+        raise DataError(
+            f"{path}: the file has no header; say which columns hold the input and the "
+            f"output (u_col=, y_col=, 0-based; {arr.shape[1]} columns) and give fs= or t_col="
+        )
     iu = _pick(names, "u", u_col, path)
     iy = _pick(names, "y", y_col, path)
     it = _pick(names, "t", t_col, path) if (t_col is not None or has_header) else None
@@ -218,6 +225,21 @@ def _file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def _arrays(path: Path, store: Any, what: str, t_col: Any, u_col: Any, y_col: Any) -> tuple[Any, Any, Any]:
+    """t (None if absent and not asked for), u and y from a mapping of named arrays (.npz, .mat)."""
+    keys = list(store.keys())
+
+    def get(name: Any, default: str) -> Any:
+        k = name if name is not None else default
+        if k not in keys:
+            if name is None and default == "t":
+                return None
+            raise DataError(f"{path}: no {what} {k!r}; the file has {keys}")
+        return store[k]
+
+    return get(t_col, "t"), get(u_col, "u"), get(y_col, "y")
+
+
 def load_dataset(
     path: str | os.PathLike[str], *, u_col: Any = None, y_col: Any = None, t_col: Any = None,
     fs: float | None = None, delimiter: str | None = None,
@@ -243,16 +265,8 @@ def load_dataset(
     if suffix == ".npz":
         try:
             with np.load(p, allow_pickle=False) as z:
-                keys = list(z.keys())
-                def get(name: Any, key: str) -> Any:
-                    k = name if name is not None else key
-                    if k not in keys:
-                        if name is None and key == "t":
-                            return None
-                        raise DataError(f"{p}: no array {k!r}; the file has {keys}")
-                    return z[k]
-                t, u, y = get(t_col, "t"), get(u_col, "u"), get(y_col, "y")
-                meta = json.loads(str(z["meta"])) if "meta" in keys else {}
+                t, u, y = _arrays(p, z, "array", t_col, u_col, y_col)
+                meta = json.loads(str(z["meta"])) if "meta" in z.files else {}
         except DataError:
             raise
         except ValueError as exc:
@@ -267,15 +281,8 @@ def load_dataset(
             m = loadmat(p)
         except Exception as exc:
             raise DataError(f"{p}: not a readable MATLAB file ({exc})") from None
-        keys = [k for k in m if not k.startswith("__")]
-        def getm(name: Any, key: str) -> Any:
-            k = name if name is not None else key
-            if k not in m:
-                if name is None and key == "t":
-                    return None
-                raise DataError(f"{p}: no variable {k!r}; the file has {keys}")
-            return m[k]
-        return _assemble(p, getm(t_col, "t"), getm(u_col, "u"), getm(y_col, "y"), fs, {})
+        variables = {k: v for k, v in m.items() if not k.startswith("__")}
+        return _assemble(p, *_arrays(p, variables, "variable", t_col, u_col, y_col), fs, {})
     return _read_text(p, t_col, u_col, y_col, fs, delimiter)
 
 

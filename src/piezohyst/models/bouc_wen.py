@@ -321,6 +321,35 @@ class BoucWen:
         return BoucWenStepper(self, dt, hold=hold)
 
 
+def solve_ivp_reference(model: BoucWen, u: Any, dt: float, *, method: str = "LSODA", rtol: float = 1e-10) -> tuple[FloatArray, FloatArray]:
+    """An independent, slow reference for eqs. (7)-(8): (x, h) in metres at the sample instants.
+
+    One ODE in (x, v, h) with the input linear between samples, integrated by
+    ``scipy.integrate.solve_ivp`` (never faster than one step per sample). For checks and
+    benchmarks, not for work: :meth:`BoucWen.simulate` computes the same thousands of times faster.
+    """
+    from scipy.integrate import solve_ivp
+
+    x = as_signal("u", u, min_length=2)
+    t = np.arange(x.size) * dt
+    slopes = np.diff(x) / dt
+    m = model
+
+    def rhs(tt: float, s: FloatArray) -> list[float]:
+        _, v, h = s
+        i = min(int(tt / dt), x.size - 2)
+        du = slopes[i]
+        uu = x[i] + du * (tt - t[i])
+        dh = m.alpha * m.d1 * du - m.beta * abs(du) * h - m.gamma * du * abs(h)
+        return [v, (m.k * (m.d1 * uu - h) - m.b * v - m.k * s[0]) / m.m, dh]
+
+    sol = solve_ivp(rhs, (0.0, t[-1]), [0.0, 0.0, 0.0], method=method, t_eval=t, rtol=rtol,
+                    atol=[1e-16, 1e-12, 1e-16], max_step=dt)
+    if not sol.success:
+        raise RuntimeError(f"solve_ivp failed: {sol.message}")
+    return sol.y[0] + m.offset, sol.y[2]
+
+
 class BoucWenStepper:
     """Streaming Bouc-Wen simulation: ``step(u_k)`` returns x (metres) at sample k."""
 
