@@ -3,11 +3,29 @@
 from __future__ import annotations
 
 import datetime as _dt
+import math
 import os
 import sys
 import tempfile
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Plain JSON data from nested dicts/lists with numpy arrays and scalars; NaN and inf become None."""
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return to_jsonable(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
 
 
 class OverwriteRefused(FileExistsError):

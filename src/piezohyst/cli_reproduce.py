@@ -52,9 +52,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def _clean(obj):  # type: ignore[no-untyped-def]
-    from .modelio import _clean as clean
+    from ._fileio import to_jsonable
 
-    return clean(obj)
+    return to_jsonable(obj)
 
 
 def _print_tables(exp, written) -> None:  # type: ignore[no-untyped-def]

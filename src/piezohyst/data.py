@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ._fileio import atomic_write, producer
+from ._fileio import to_jsonable as _jsonable
 from ._validation import FloatArray, as_signal
 
 
@@ -305,18 +306,6 @@ def save_dataset(path: str | os.PathLike[str], ds: Dataset, *, force: bool = Fal
             fh.write("t_s,u_V,y_um\n")
             np.savetxt(fh, np.column_stack([ds.t, ds.u, ds.y]), delimiter=",", fmt="%.10g")
     return atomic_write(p, write_csv, force=force)
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
 
 
 # ------------------------------------------------------------------------------------------------

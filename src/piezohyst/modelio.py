@@ -21,14 +21,13 @@ colleague cannot run code.
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from ._fileio import atomic_write_text, producer
+from ._fileio import to_jsonable as _clean
 from .models.bouc_wen import BoucWen
 from .models.pi import PrandtlIshlinskii
 
@@ -39,20 +38,6 @@ KINDS = ("prandtl-ishlinskii", "bouc-wen")
 
 class ModelFileError(ValueError):
     """A model file that cannot be read, with the file and the reason in the message."""
-
-
-def _clean(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, np.generic):
-        return _clean(obj.item())
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
 
 
 def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
