@@ -39,6 +39,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     import numpy as np
 
     import piezohyst as ph
+    from piezohyst.identify import simulate_fit
 
     ds = load_cli_dataset(args.data, args)
     start, stop = args.train
@@ -64,7 +65,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         validation.append((vf, load_cli_dataset(vf, args), 0))
     vrows = []
     for name, vd, first in validation:
-        pred = _predict(fit, vd)
+        pred = simulate_fit(fit, vd.u, vd.dt)
         d = fit.delay
         resid = (vd.y[d:] - pred[: pred.size - d] if d else vd.y - pred)[max(first - d, 0):]
         # the validation record's sensor zero may differ: report with and without refitting it
@@ -81,14 +82,6 @@ def cmd_identify(args: argparse.Namespace) -> int:
         return 0
     _print_table(fit, vrows, out_path, ds)
     return 0
-
-
-def _predict(fit, ds):  # type: ignore[no-untyped-def]
-    import piezohyst as ph
-
-    if isinstance(fit.model, ph.PrandtlIshlinskii):
-        return fit.model.simulate(ds.u)
-    return fit.model.simulate(ds.u, ds.dt) * 1e6
 
 
 def _params(model) -> dict[str, Any]:  # type: ignore[no-untyped-def]

@@ -45,9 +45,10 @@ from typing import Any
 import numpy as np
 
 from ._validation import FloatArray, as_signal
-from .control.tracking import TrackingResult, UnstableLoopError
+from .control.tracking import LoopWatch, TrackingResult
 from .control.tuning import TuningResult, tune_integral_feedback
 from .data import Dataset
+from .rig import open_loop
 from .identify import FitResult, fit_rate_pi
 from .models.rate_pi import RatePIInverse
 from .signals import estimate_period, sinusoid
@@ -65,14 +66,6 @@ def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100
     parts.append(np.full(int(round(1.0 / dt)), mid))
     parts.append(sinusoid(3.0, 3, lo, hi, dt))
     return np.concatenate(parts)
-
-
-def _excite(plant: Any, u: FloatArray) -> Dataset:
-    if hasattr(plant, "excite"):
-        return plant.excite(u)
-    plant.reset()
-    y = np.array([float(plant.step(v)) for v in u])
-    return Dataset(np.arange(u.size) * plant.dt, u, y, {"source": type(plant).__name__})
 
 
 def _lowpass_periodic(x: FloatArray, dt: float, cutoff_hz: float) -> FloatArray:
@@ -145,27 +138,25 @@ class CommissionedController:
         learning_on = learn
         cycle_rms: list[float] = []
         vpu = self.volts_per_um
-        u_range = getattr(plant, "u_range", None)
-        lo_u, hi_u = (float(u_range[0]), float(u_range[1])) if u_range is not None else (-np.inf, np.inf)
+        span = float(np.ptp(r))
+        watch = LoopWatch(r, u_range=getattr(plant, "u_range", None), feedback_on=pid is not None,
+                          limit=10 * span + 10, dt=dt, describe=lambda: f"controller {self.describe()}")
         plant.reset()
         y = np.empty(n)
         u = np.empty(n)
         y_prev = 0.0
         sat = 0
-        span = float(np.ptp(r))
         cutoff = self.ilc_cutoff_hz or (max(50.0, 15.0 / (per * dt)) if per else 50.0)
         for k in range(n):
             fb = pid.step(r[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
             j = min(k + d, n - 1)
             target = r[j] + (corr[j % per] if corr is not None else 0.0)  # type: ignore[index, operator]
             uk = ff.step(target) + fb
-            sat = 1 if uk > hi_u else (-1 if uk < lo_u else 0)
+            sat = watch.command(k, uk)
             yk = float(plant.step(uk))
-            if not np.isfinite(yk) or abs(yk - r[k]) > 10 * span + 10:
-                raise UnstableLoopError(f"the loop went unstable at sample {k}: output {yk!r} um; "
-                                        f"controller {self.describe()}")
             u[k] = uk
             y[k] = yk
+            watch.output(k, yk, y)
             y_prev = yk
             if learn and (k + 1) % per == 0:
                 c0 = k + 1 - per
@@ -214,7 +205,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     if not rng_u[0] < rng_u[1]:
         raise ValueError(f"u_range must be (low, high) with low < high, got {rng_u}")
     cmd = commissioning_excitation(dt, rng_u) if excitation is None else as_signal("excitation", excitation)  # type: ignore[arg-type]
-    ds = _excite(plant, cmd)
+    ds = open_loop(plant, cmd)
     fit = fit_rate_pi(ds.u, ds.y, dt, n=n, u_max=max(abs(rng_u[0]), abs(rng_u[1])))
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain)
     if tune:

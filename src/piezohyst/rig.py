@@ -75,6 +75,17 @@ class Plant(Protocol):
     def step(self, u: float) -> float: ...
 
 
+def open_loop(plant: Any, u: Any) -> Dataset:
+    """An open-loop run of any Plant from rest: ``plant.excite(u)`` when it has one (compiled for
+    the VirtualRig), else ``reset()`` and one ``step`` per sample."""
+    if hasattr(plant, "excite"):
+        return plant.excite(u)  # type: ignore[no-any-return]
+    x = as_signal("u", u)
+    plant.reset()
+    y = np.array([float(plant.step(v)) for v in x])
+    return Dataset(np.arange(x.size) * plant.dt, x, y, {"source": type(plant).__name__})
+
+
 class ClippingWarning(UserWarning):
     """Commands left the amplifier's range and were clipped."""
 

@@ -128,6 +128,73 @@ class TrackingResult:
         return plot_tracking(self.t, self.reference, self.output, axes=axes, title=title or self.label)
 
 
+class LoopWatch:
+    """The checks that stop a closed-loop run that has gone unstable, shared by every loop.
+
+    * the output is not finite, or ``|y - r|`` exceeds ``limit``;
+    * with feedback on and the plant's ``u_range`` known: ten or more commands below *and* ten
+      or more above the range within 200 samples (an unstable loop on a saturating amplifier does
+      not diverge, it oscillates between the limits);
+    * with feedback on, after the first fifth of the run: the error's RMS over 500 samples
+      exceeds the reference's span (the loop is not following at all).
+
+    ``describe()`` names the controller settings in the error message.
+    """
+
+    WINDOW = 500
+    CHATTER = 200
+
+    def __init__(self, r: FloatArray, *, u_range: Any, feedback_on: bool, limit: float, dt: float,
+                 describe: Any):
+        self.r = r
+        self.dt = dt
+        self.limit = limit
+        self.describe = describe
+        self.span = float(np.ptp(r))
+        self.settle = max(r.size // 5, self.WINDOW)
+        self.watch_window = feedback_on and self.span > 0 and r.size >= 2 * self.settle
+        self.lo_u, self.hi_u = (float(u_range[0]), float(u_range[1])) if u_range is not None else (-math.inf, math.inf)
+        self.watch_chatter = feedback_on and u_range is not None
+        self.n_lo = self.n_hi = 0
+
+    def command(self, k: int, uk: float) -> int:
+        """Check command k; return +1/-1 when it is above/below the actuator's range, else 0."""
+        sat = 1 if uk > self.hi_u else (-1 if uk < self.lo_u else 0)
+        if self.watch_chatter:
+            if sat > 0:
+                self.n_hi += 1
+            elif sat < 0:
+                self.n_lo += 1
+            if k % self.CHATTER == self.CHATTER - 1:
+                if self.n_hi >= 10 and self.n_lo >= 10:
+                    raise UnstableLoopError(
+                        f"the loop oscillates between the amplifier's limits ({self.n_lo} commands below "
+                        f"{self.lo_u:g} V and {self.n_hi} above {self.hi_u:g} V within samples "
+                        f"{k - self.CHATTER + 1}..{k}) with {self.describe()}; lower the feedback gains"
+                    )
+                self.n_lo = self.n_hi = 0
+        return sat
+
+    def output(self, k: int, yk: float, y: FloatArray) -> None:
+        """Check output k (``y[:k+1]`` holds the outputs so far, ``y[k] == yk``)."""
+        rk = self.r[k]
+        if not math.isfinite(yk) or abs(yk - rk) > self.limit:
+            raise UnstableLoopError(
+                f"the loop went unstable at sample {k} (t = {k * self.dt:.4g} s): output {yk!r} um against "
+                f"reference {rk:.4g} um, with {self.describe()}; lower the feedback gains"
+            )
+        w = self.WINDOW
+        if self.watch_window and k >= self.settle and k % w == w - 1:
+            ew = y[k - w + 1: k + 1] - self.r[k - w + 1: k + 1]
+            rms = float(np.sqrt(np.mean(ew * ew)))
+            if rms > self.span:
+                raise UnstableLoopError(
+                    f"the loop stopped following: the error's RMS over samples {k - w + 1}..{k} "
+                    f"is {rms:.4g} um, more than the reference's whole span ({self.span:.4g} um), with "
+                    f"{self.describe()}; lower the feedback gains"
+                )
+
+
 def _describe(feedforward: Any, feedback: Any, feedback_at: str) -> str:
     parts = [f"feedforward={feedforward!r}" if feedforward is not None else "no feedforward"]
     if feedback is not None:
@@ -194,19 +261,10 @@ def track(
     y = np.empty(n)
     u = np.empty(n)
     y_prev = 0.0  # the plant starts at rest
-    # an unstable loop on a saturating plant does not diverge, it oscillates between the limits:
-    # after the start-up, an error as large as the whole motion means the loop is not following
-    span = float(np.ptp(r))
-    window = 500
-    settle = max(n // 5, window)
-    watch_window = feedback is not None and span > 0 and n >= 2 * settle
     # the plant's actuator limits, if it tells them, drive the PID's anti-windup
-    u_range = getattr(plant, "u_range", None)
-    lo_u, hi_u = (float(u_range[0]), float(u_range[1])) if u_range is not None else (-math.inf, math.inf)
+    watch = LoopWatch(r, u_range=getattr(plant, "u_range", None), feedback_on=feedback is not None,
+                      limit=limit, dt=dt, describe=lambda: _describe(feedforward, feedback, feedback_at))
     sat = 0
-    # ... and a loop that bangs its command between both limits within 200 samples is unstable
-    watch_chatter = feedback is not None and u_range is not None
-    n_lo = n_hi = 0
     ff_step = feedforward.step if feedforward is not None else None
     fb_step = feedback.step if feedback is not None else None
     at_ref = feedback_at == "reference"
@@ -220,39 +278,12 @@ def track(
             uk = ff_step(rk + fb)
         else:
             uk = ff_step(rk) + fb
-        sat = 1 if uk > hi_u else (-1 if uk < lo_u else 0)
-        if watch_chatter:
-            if sat > 0:
-                n_hi += 1
-            elif sat < 0:
-                n_lo += 1
-            if k % 200 == 199:
-                if n_hi >= 10 and n_lo >= 10:
-                    raise UnstableLoopError(
-                        f"the loop oscillates between the amplifier's limits ({n_lo} commands below "
-                        f"{lo_u:g} V and {n_hi} above {hi_u:g} V within samples {k - 199}..{k}) with "
-                        f"{_describe(feedforward, feedback, feedback_at)}; lower the feedback gains"
-                    )
-                n_lo = n_hi = 0
+        sat = watch.command(k, uk)
         yk = float(pstep(uk))
-        if not math.isfinite(yk) or abs(yk - rk) > limit:
-            raise UnstableLoopError(
-                f"the loop went unstable at sample {k} (t = {k * dt:.4g} s): output {yk!r} um against "
-                f"reference {rk:.4g} um, with {_describe(feedforward, feedback, feedback_at)}; "
-                f"lower the feedback gains"
-            )
         u[k] = uk
         y[k] = yk
+        watch.output(k, yk, y)
         y_prev = yk
-        if watch_window and k >= settle and k % window == window - 1:
-            ew = y[k - window + 1: k + 1] - r[k - window + 1: k + 1]
-            rms = float(np.sqrt(np.mean(ew * ew)))
-            if rms > span:
-                raise UnstableLoopError(
-                    f"the loop stopped following: the error's RMS over samples {k - window + 1}..{k} "
-                    f"is {rms:.4g} um, more than the reference's whole span ({span:.4g} um), with "
-                    f"{_describe(feedforward, feedback, feedback_at)}; lower the feedback gains"
-                )
     clipped = None
     if clipped0 is not None:
         clipped = int(getattr(plant, "clipped")) - (0 if reset else int(clipped0))

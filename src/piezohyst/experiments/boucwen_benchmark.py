@@ -36,7 +36,13 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..models.bouc_wen_structural import StructuralBoucWen, fine_input, simulate_structural, structural_swarm_rmse
+from ..models.bouc_wen_structural import (
+    StructuralBoucWen,
+    fine_input,
+    simulate_structural,
+    structural_rk4,
+    structural_swarm_rmse,
+)
 from ..pso import pso_minimize
 
 FS = 750.0
@@ -171,7 +177,7 @@ def identify(data: dict[str, np.ndarray], *, seed: int = 0, n_particles: int = 4
     h_ref = 1.0 / (FS * sub_ref)
 
     def resid(x: np.ndarray) -> np.ndarray:
-        sim = structural_swarm_residual(natural(x)[0], fine_all, h_ref, sub_ref)
+        sim = structural_rk4(np.ascontiguousarray(natural(x)[0]), fine_all, h_ref, sub_ref, np.zeros(3))
         r = sim - y
         return r if np.all(np.isfinite(r)) else np.full(y.size, 1.0)
 
@@ -184,12 +190,6 @@ def identify(data: dict[str, np.ndarray], *, seed: int = 0, n_particles: int = 4
     p = natural(best)[0]
     model = StructuralBoucWen(m=p[0], c=p[1], k=p[2], alpha=p[3], beta=1.0, gamma=p[4], delta=p[5], nu=p[6])
     return model, stages, time.perf_counter() - t_all
-
-
-def structural_swarm_residual(p: np.ndarray, fine: np.ndarray, h: float, substeps: int) -> np.ndarray:
-    from ..models.bouc_wen_structural import structural_rk4
-
-    return structural_rk4(np.ascontiguousarray(p, dtype=np.float64), fine, h, substeps, np.zeros(3))
 
 
 def test_errors(model: StructuralBoucWen, data: dict[str, np.ndarray]) -> dict[str, float]:

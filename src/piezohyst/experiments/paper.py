@@ -38,7 +38,7 @@ from ..control.tracking import TrackingResult, track
 from ..control.tuning import TuningResult, tune_integral_feedback
 from ..data import Dataset
 from ..identify import FitResult, fit_bouc_wen, fit_pi
-from ..rig import VirtualRig
+from ..rig import VirtualRig, open_loop
 from ..signals import sinusoid
 
 MODELS = ("bouc-wen", "pi")
@@ -196,22 +196,15 @@ def run_paper_experiment(
     say = on_step or (lambda s: None)
     dt = plant.dt
 
-    def excite(u: np.ndarray) -> Dataset:
-        if hasattr(plant, "excite"):
-            return plant.excite(u)
-        plant.reset()
-        y = np.array([plant.step(v) for v in u])
-        return Dataset(np.arange(u.size) * dt, u, y, {"source": type(plant).__name__})
-
     lo_u, hi_u = u_range
     loops = {}
     for f in freqs:
         say(f"open loop, {f:g} Hz (Fig. 2)")
-        ds = excite(sinusoid(f, 3, lo_u, hi_u, dt))
+        ds = open_loop(plant, sinusoid(f, 3, lo_u, hi_u, dt))
         loops[f] = (ds, loop_figures(ds.u, ds.y, period=int(round(1 / (f * dt)))))
 
     say("identification record: 1 Hz, 0-100 V")
-    ident = excite(sinusoid(1.0, 3, lo_u, hi_u, dt))
+    ident = open_loop(plant, sinusoid(1.0, 3, lo_u, hi_u, dt))
     t0 = time.perf_counter()
     say(f"PSO: Bouc-Wen, 7 parameters ({pso_bw[0]} x {pso_bw[1]})")
     bw_fit = fit_bouc_wen(ident.u, ident.y, dt, seed=seed, n_particles=pso_bw[0], max_iter=pso_bw[1], polish=False)
