@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import piezohyst as ph
+from piezohyst.modelio import SCHEMA_VERSION
 from piezohyst import paper_values as pv
 
 from .conftest import DATA
@@ -101,10 +102,31 @@ def test_model_files_round_trip_and_refuse_overwrite(tmp_path):
         ph.save_model(model, p, force=True)
         assert ph.load_model(p) == model
         doc = json.loads(p.read_text())
-        assert doc["schema"] == "piezohyst.model/1" and doc["producer"].startswith("piezohyst")
+        assert doc["schema"] == f"piezohyst.model/{SCHEMA_VERSION}" and doc["producer"].startswith("piezohyst")
         with pytest.raises(FileExistsError, match="--force"):
             ph.save_model(model, p)
     assert [f.name for f in tmp_path.iterdir()] == ["m.json"]  # no temporary files left behind
+
+
+def test_version_1_model_files_still_load(tmp_path):
+    # a file exactly as piezohyst 0.1.0 wrote it (schema 1): it must load unchanged next year
+    doc = {"schema": "piezohyst.model/1", "kind": "prandtl-ishlinskii",
+           "producer": "piezohyst 0.1.0; command: piezohyst identify d.csv -o m.json; at 2026-11-01T10:00:00Z",
+           "units": {"input": "V", "output": "um"},
+           "parameters": {"thresholds": [0.0, 20.0, 40.0], "weights": [0.02, 0.002, 0.001],
+                          "initial_state": [0.0, 0.0, 0.0], "offset": 0.5, "input_offset": 0.0},
+           "fit": {"method": "lsq", "rmse": 0.01}, "data": None}
+    p = tmp_path / "old.json"
+    p.write_text(json.dumps(doc))
+    m = ph.load_model(p)
+    assert m == ph.PrandtlIshlinskii([0.0, 20.0, 40.0], [0.02, 0.002, 0.001], offset=0.5)
+
+
+def test_deeply_nested_model_file_is_refused(tmp_path):
+    p = tmp_path / "deep.json"
+    p.write_text('{"schema": "piezohyst.model/2", "kind": "rate-dependent", "parameters": ' + "[" * 100000 + "]" * 100000 + "}")
+    with pytest.raises(ph.ModelFileError, match="nested"):
+        ph.load_model(p)
 
 
 def test_model_file_keeps_fit_and_data_hash(tmp_path):
@@ -122,8 +144,10 @@ def test_model_file_keeps_fit_and_data_hash(tmp_path):
     "doc, match",
     [
         ({"schema": "piezohyst.model/99", "kind": "bouc-wen", "parameters": {}}, "newer piezohyst"),
-        ({"schema": "something/1"}, "not a piezohyst model"),
-        ({"schema": "piezohyst.model/1", "kind": "preisach", "parameters": {}}, "unknown model kind"),
+        ({"schema": "something/1"}, "not a piezohyst.model file"),
+        ({"schema": "piezohyst.model/-7", "kind": "bouc-wen", "parameters": {}}, "positive integer"),
+        ({"schema": "piezohyst.model/1x", "kind": "bouc-wen", "parameters": {}}, "positive integer"),
+        ({"schema": "piezohyst.model/1", "kind": "maxwell-slip", "parameters": {}}, "unknown model kind"),
         ({"schema": "piezohyst.model/1", "kind": "bouc-wen", "parameters": {"m": 1}}, "missing"),
         ({"schema": "piezohyst.model/1", "kind": "prandtl-ishlinskii",
           "parameters": {"thresholds": [0, 1], "weights": [1]}}, "one entry per threshold"),

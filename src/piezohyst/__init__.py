@@ -4,64 +4,77 @@ Implements Prandtl-Ishlinskii and Bouc-Wen hysteresis models, their identificati
 swarm optimisation (and, beyond the paper, constrained least squares), the inverse-P-I and
 Bouc-Wen feedforward controllers with PID feedback, and a virtual piezo test rig, after
 "Model-Based Control for Piezoelectric-Actuated Systems Using Inverse Prandtl-Ishlinskii Model
-and Particle Swarm Optimization". Equation numbers in docstrings refer to that paper.
+and Particle Swarm Optimization". Equation numbers in docstrings refer to that paper. Beyond it:
+asymmetric P-I, Preisach and rate-dependent models behind one interface
+(:mod:`piezohyst.models.base`), model selection on held-out data (:func:`fit_model`), and
+commissioning of any stage (:func:`commission`).
+
+The names below are imported on first use, so ``import piezohyst`` (and ``piezohyst --help``)
+does not pay for numba and scipy until something needs them.
 """
 
 from __future__ import annotations
 
-from .analysis import LoopFigures, loop_figures
-from .commission import CommissionedController, commission
-from .control import BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult, UnstableLoopError, track
-from .data import DataError, Dataset, load_dataset, load_piezo_dbo, save_dataset
-from .identify import FitResult, fit_bouc_wen, fit_pi, fit_rate_pi
-from .models.rate_pi import RateDependentPI
-from .models import BoucWen, BoucWenStepper, PIStepper, PrandtlIshlinskii, equal_thresholds, play_operator
-from .modelio import ModelFileError, load_model, save_model
-from .pso import PSOResult, pso_minimize
-from .rig import ClippingWarning, Plant, RigSettings, VirtualRig
-from . import signals
-from .signals import estimate_period, sinusoid
+import importlib
+from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+from ._version import __version__
 
-__all__ = [
-    "CommissionedController",
-    "RateDependentPI",
-    "commission",
-    "fit_rate_pi",
-    "BoucWenFeedforward",
-    "InversePIFeedforward",
-    "PID",
-    "TrackingResult",
-    "UnstableLoopError",
-    "track",
-    "ClippingWarning",
-    "signals",
-    "Plant",
-    "RigSettings",
-    "VirtualRig",
-    "DataError",
-    "Dataset",
-    "FitResult",
-    "ModelFileError",
-    "PSOResult",
-    "fit_bouc_wen",
-    "fit_pi",
-    "load_dataset",
-    "load_model",
-    "load_piezo_dbo",
-    "pso_minimize",
-    "save_dataset",
-    "save_model",
-    "BoucWen",
-    "BoucWenStepper",
-    "LoopFigures",
-    "PIStepper",
-    "PrandtlIshlinskii",
-    "__version__",
-    "equal_thresholds",
-    "estimate_period",
-    "loop_figures",
-    "play_operator",
-    "sinusoid",
-]
+#: public name -> the module that defines it
+_LAZY: dict[str, str] = {
+    "LoopFigures": "analysis", "loop_figures": "analysis",
+    "CommissionedController": "commission", "commission": "commission",
+    "BoucWenFeedforward": "control", "InversePIFeedforward": "control", "PID": "control",
+    "TrackingResult": "control", "UnstableLoopError": "control", "track": "control",
+    "DataError": "data", "Dataset": "data", "load_dataset": "data", "load_piezo_dbo": "data",
+    "save_dataset": "data",
+    "FitResult": "identify", "fit_bouc_wen": "identify", "fit_pi": "identify", "fit_rate_pi": "identify",
+    "fit_model": "identify", "fit_asymmetric_pi": "identify", "fit_preisach": "identify",
+    "fit_rate_dependent": "identify",
+    "AsymmetricPI": "models", "BoucWen": "models", "BoucWenStepper": "models", "Compensator": "models",
+    "HysteresisModel": "models", "OutputMap": "models", "PIStepper": "models", "Preisach": "models",
+    "PrandtlIshlinskii": "models", "RateDependent": "models", "RateDependentPI": "models",
+    "equal_thresholds": "models", "play_operator": "models", "kinds": "models",
+    "ModelFileError": "modelio", "load_model": "modelio", "save_model": "modelio",
+    "PSOResult": "pso", "pso_minimize": "pso",
+    "Plant": "plant", "open_loop": "plant",
+    "ClippingWarning": "rig", "RigSettings": "rig", "VirtualRig": "rig",
+    "estimate_period": "signals", "sinusoid": "signals",
+}
+_SUBMODULES = ("signals", "models", "identify", "control", "data", "modelio", "plots", "experiments")
+
+__all__ = sorted([*_LAZY, *_SUBMODULES, "__version__"])
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    elif name in _SUBMODULES:
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module 'piezohyst' has no attribute {name!r}")
+    globals()[name] = value  # later lookups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return __all__
+
+
+if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
+    from . import control, data, experiments, identify, modelio, models, plots, signals  # noqa: F401
+    from .analysis import LoopFigures, loop_figures  # noqa: F401
+    from .commission import CommissionedController, commission  # noqa: F401
+    from .control import (BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult,  # noqa: F401
+                          UnstableLoopError, track)
+    from .data import DataError, Dataset, load_dataset, load_piezo_dbo, save_dataset  # noqa: F401
+    from .identify import (FitResult, fit_asymmetric_pi, fit_bouc_wen, fit_model, fit_pi,  # noqa: F401
+                           fit_preisach, fit_rate_dependent, fit_rate_pi)
+    from .modelio import ModelFileError, load_model, save_model  # noqa: F401
+    from .models import (AsymmetricPI, BoucWen, BoucWenStepper, Compensator, HysteresisModel,  # noqa: F401
+                         OutputMap, PIStepper, PrandtlIshlinskii, Preisach, RateDependent, RateDependentPI,
+                         equal_thresholds, kinds, play_operator)
+    from .plant import Plant, open_loop  # noqa: F401
+    from .pso import PSOResult, pso_minimize  # noqa: F401
+    from .rig import ClippingWarning, RigSettings, VirtualRig  # noqa: F401
+    from .signals import estimate_period, sinusoid  # noqa: F401

@@ -13,12 +13,14 @@ ablation and in ``tests/test_commission.py``):
    threshold is exercised), full-range 5 and 10 Hz sinusoids (rate dependence), a hold at
    mid-range (creep) and a 3 Hz sinusoid. Within the amplifier range the plant reports
    (``plant.u_range``) or the one given.
-2. **Model**: a rate-dependent P-I (:class:`~piezohyst.models.rate_pi.RateDependentPI`): P-I
-   on an input lag (amplifier + stack) plus output lags from 10 ms to 3 s (rate dependence,
-   creep), fitted by bounded least squares (global optimum, invertible by construction), with
-   the sensor delay and the input lag chosen by the fit (:func:`~piezohyst.identify.fit_rate_pi`).
-3. **Feedforward**: the model's exact inverse, fed the reference ``delay`` samples ahead (the
-   reference is known in advance; this cancels the sensor's delay).
+2. **Model**: chosen on held-out data among every linear kind and structure
+   (:func:`~piezohyst.identify.fit_model`): P-I, asymmetric P-I or Preisach, with an input lag
+   (amplifier + stack) and output lags (rate dependence, creep) where they predict better, the
+   sensor delay searched over what the data show; each candidate is one bounded least-squares
+   fit, invertible with a stable inverse by construction (:mod:`piezohyst.identify.linear`).
+3. **Feedforward**: the model's compensator (its exact or numerical inverse), fed the
+   reference ``delay`` samples ahead (the reference is known in advance; this cancels the
+   sensor's delay).
 4. **Feedback**: integral action, tuned on the plant
    (:func:`~piezohyst.control.tuning.tune_integral_feedback`, ``ki = ki_u / 3``), added to the
    *command*, scaled by the model's mean slope (V per µm), with anti-windup on the plant's
@@ -48,10 +50,13 @@ from ._validation import FloatArray, as_signal
 from .control.tracking import LoopWatch, TrackingResult
 from .control.tuning import TuningResult, tune_integral_feedback
 from .data import Dataset
-from .rig import open_loop
-from .identify import FitResult, fit_rate_pi
-from .models.rate_pi import RatePIInverse
+from .plant import open_loop
+from .identify import FitResult, fit_model
+from .models.base import Compensator, kind_of
 from .signals import estimate_period, sinusoid
+
+#: The kinds commissioning chooses from: fast to fit, each with an exact or numerical inverse.
+COMMISSION_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach")
 
 
 def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100.0)) -> FloatArray:
@@ -99,17 +104,20 @@ class CommissionedController:
 
     def describe(self) -> dict[str, Any]:
         m = self.model
+        hold = self.fit.info.get("holdout", {})
         return {
-            "model": "rate-dependent P-I (P-I on an input lag + output lags)",
-            "n_operators": m.pi.n, "input_tau_s": m.input_tau, "output_taus_s": m.taus.tolist(),
-            "lag_weights": m.lag_weights.tolist(), "fit_rmse_um": self.fit.rmse, "delay_samples": self.delay,
+            "model": kind_of(m), "structure": self.fit.info.get("chosen", self.fit.method),
+            "fit_rmse_um": self.fit.rmse, "holdout_rmse_um": hold.get("rmse"),
+            "holdout_percent_of_span": hold.get("percent_of_span"), "delay_samples": self.delay,
             "ki": self.tuning.ki if self.tuning else None,
             "ki_ultimate": self.tuning.ki_ultimate if self.tuning else None,
             "learning_gain": self.learning_gain, "commissioning_time_s": self.time_s,
+            "warnings": list(self.fit.warnings),
         }
 
-    def feedforward(self) -> RatePIInverse:
-        return RatePIInverse(self.model)
+    def feedforward(self) -> Compensator:
+        """The identified model's compensator (desired µm in, volts out), at the plant's rate."""
+        return self.model.compensator(self.plant.dt if self.model.dynamic else None)
 
     @property
     def volts_per_um(self) -> float:
@@ -180,7 +188,7 @@ class CommissionedController:
                               info={"feedback": feedback, "learning": learn, "cycle_rms_um": cycle_rms})
 
 
-def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None = None, n: int = 20,
+def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None = None, n: int | None = None,
                excitation: Any = None, tune: bool = True, learning_gain: float = 0.5) -> CommissionedController:
     """Identify ``plant`` and build its controller (module docstring).
 
@@ -196,6 +204,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         The amplifier's range, V; default the plant's ``u_range``, else (0, 100).
     excitation : array_like, optional
         Your own identification command instead of :func:`commissioning_excitation`.
+    n : int, optional
+        Fix the P-I operators / Preisach levels (default: chosen on held-out data).
     """
     t0 = time.perf_counter()
     dt = getattr(plant, "dt", None)
@@ -206,7 +216,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         raise ValueError(f"u_range must be (low, high) with low < high, got {rng_u}")
     cmd = commissioning_excitation(dt, rng_u) if excitation is None else as_signal("excitation", excitation)  # type: ignore[arg-type]
     ds = open_loop(plant, cmd)
-    fit = fit_rate_pi(ds.u, ds.y, dt, n=n, u_max=max(abs(rng_u[0]), abs(rng_u[1])))
+    fit = fit_model(ds.u, ds.y, dt, "auto", kinds=COMMISSION_KINDS, n=n)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain)
     if tune:
         level = float(np.median(ds.y))

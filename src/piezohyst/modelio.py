@@ -3,11 +3,11 @@
 A file looks like::
 
     {
-      "schema": "piezohyst.model/1",
-      "kind": "prandtl-ishlinskii" | "bouc-wen",
+      "schema": "piezohyst.model/2",
+      "kind": "prandtl-ishlinskii" | "bouc-wen" | "rate-dependent" | "asymmetric-pi" | "preisach",
       "producer": "piezohyst 0.1.0; command: ...; at ...",
       "units": {...},
-      "parameters": {...},
+      "parameters": {...},          # the kind's to_dict(); wrappers nest {"kind", "parameters"}
       "fit": {"method": ..., "rmse": ..., ...} | null,
       "data": {"sha256": ..., "n_samples": ..., "source": ...} | null
     }
@@ -28,36 +28,43 @@ from typing import Any
 
 from ._fileio import atomic_write_text, producer
 from ._fileio import to_jsonable as _clean
-from .models.bouc_wen import BoucWen
-from .models.pi import PrandtlIshlinskii
+from .models.base import kind_class, kind_of, kinds
+from .models.base import model_from_dict as registry_from_dict
+
+#: Largest model file read (a model is kilobytes; this refuses a mistaken or hostile input).
+MAX_FILE_BYTES = 64 * 1024 * 1024
 
 SCHEMA_NAME = "piezohyst.model"
-SCHEMA_VERSION = 1
-KINDS = ("prandtl-ishlinskii", "bouc-wen")
+#: Version 2 added the kinds beyond the paper (nested models in "parameters"); version 1 files
+#: (prandtl-ishlinskii, bouc-wen) have the same layout and load unchanged.
+SCHEMA_VERSION = 2
+#: Deepest nesting a model file may have (wrappers hold models; nothing legitimate nests deeper).
+MAX_DEPTH = 32
 
 
 class ModelFileError(ValueError):
     """A model file that cannot be read, with the file and the reason in the message."""
 
 
+_UNITS = {"input": "V", "output": "um"}
+
+
+def model_units(model: Any) -> dict[str, str]:
+    """The units a model's file records (SI parameters for Bouc-Wen, µm otherwise)."""
+    if getattr(model, "output_unit", "um") == "m":
+        return {"input": "V", "output": "m", "m": "kg", "b": "N s/m", "k": "N/m", "d1": "m/V",
+                "alpha": "1", "beta": "1/V", "gamma": "1/V", "offset": "m", "h0": "m"}
+    return {**_UNITS, "time": "s", "note": "thresholds and lags act on the input (V); weights are um per V"}
+
+
 def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
                   units: dict[str, str] | None = None, extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """The JSON document for ``model`` (see the module docstring)."""
-    if isinstance(model, PrandtlIshlinskii):
-        kind = "prandtl-ishlinskii"
-        params = {
-            "thresholds": model.thresholds.tolist(), "weights": model.weights.tolist(),
-            "initial_state": model.initial_state.tolist(), "offset": model.offset,
-            "input_offset": model.input_offset,
-        }
-        unit = {"input": "V", "output": "um", "thresholds": "input unit", "weights": "output unit per input unit"}
-    elif isinstance(model, BoucWen):
-        kind = "bouc-wen"
-        params = model.parameters()
-        unit = {"input": "V", "output": "m", "m": "kg", "b": "N s/m", "k": "N/m", "d1": "m/V",
-                "alpha": "1", "beta": "1/V", "gamma": "1/V", "offset": "m", "h0": "m"}
-    else:
-        raise TypeError(f"cannot save a {type(model).__name__}; expected PrandtlIshlinskii or BoucWen")
+    try:
+        kind = kind_of(model)
+    except TypeError as exc:
+        raise TypeError(f"cannot save a {type(model).__name__}: {exc}") from None
+    unit = model_units(model)
     if units:
         unit.update(units)
     doc: dict[str, Any] = {
@@ -65,7 +72,7 @@ def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
         "kind": kind,
         "producer": producer(),
         "units": unit,
-        "parameters": params,
+        "parameters": model.to_dict(),
         "fit": fit.summary() if fit is not None else None,
         "data": None,
     }
@@ -81,14 +88,15 @@ def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
 def save_model(model: Any, path: str | os.PathLike[str], *, fit: Any = None, dataset: Any = None,
                units: dict[str, str] | None = None, extra: dict[str, Any] | None = None,
                force: bool = False) -> Path:
-    """Save ``model`` as a versioned JSON file, atomically; refuse to overwrite unless ``force``.
+    """Save ``model`` (any registered kind) as a versioned JSON file, atomically; refuse to
+    overwrite unless ``force``.
 
     Parameters
     ----------
-    model : PrandtlIshlinskii or BoucWen
+    model : any kind of :mod:`piezohyst.models`
     path : path
     fit : FitResult, optional
-        Its figures (RMSE, method, time, sensitivity) are stored with the model.
+        Its figures (RMSE, method, time, hold-out errors, warnings) are stored with the model.
     dataset : Dataset, optional
         Its SHA-256 and source are stored, so the model says what it was identified on.
     """
@@ -97,58 +105,86 @@ def save_model(model: Any, path: str | os.PathLike[str], *, fit: Any = None, dat
     return atomic_write_text(path, text, force=force)
 
 
+def schema_version(doc: Any, source: str, name: str = SCHEMA_NAME, newest: int = SCHEMA_VERSION) -> int:
+    """The schema version of a document, checked: a positive integer no newer than ``newest``."""
+    if not isinstance(doc, dict):
+        raise ModelFileError(f"{source}: not a piezohyst file (top level is not an object)")
+    schema = doc.get("schema")
+    if not isinstance(schema, str) or not schema.startswith(name + "/"):
+        raise ModelFileError(f"{source}: not a {name} file (schema is {schema!r})")
+    text = schema.split("/", 1)[1]
+    if not text.isdigit() or int(text) < 1:
+        raise ModelFileError(f"{source}: unreadable schema version {text!r} in {schema!r} (expected a positive integer)")
+    version = int(text)
+    if version > newest:
+        raise ModelFileError(f"{source}: written by a newer piezohyst (schema version {version}; "
+                             f"this one reads up to {newest}); upgrade piezohyst")
+    return version
+
+
+def _depth(obj: Any, limit: int) -> int:
+    """Nesting depth of plain JSON data, without recursion (a hostile file cannot overflow the stack)."""
+    stack = [(obj, 1)]
+    deepest = 0
+    while stack:
+        o, d = stack.pop()
+        deepest = max(deepest, d)
+        if deepest > limit:
+            return deepest
+        if isinstance(o, dict):
+            stack.extend((v, d + 1) for v in o.values())
+        elif isinstance(o, list):
+            stack.extend((v, d + 1) for v in o)
+    return deepest
+
+
 def model_from_dict(doc: Any, *, source: str = "model") -> Any:
     """Rebuild a model from its JSON document, checking the schema."""
-    if not isinstance(doc, dict):
-        raise ModelFileError(f"{source}: not a piezohyst model (top level is not an object)")
-    schema = doc.get("schema")
-    if not isinstance(schema, str) or not schema.startswith(SCHEMA_NAME + "/"):
-        raise ModelFileError(f"{source}: not a piezohyst model file (schema is {schema!r})")
-    try:
-        version = int(schema.split("/", 1)[1])
-    except ValueError:
-        raise ModelFileError(f"{source}: unreadable schema version in {schema!r}") from None
-    if version > SCHEMA_VERSION:
-        raise ModelFileError(f"{source}: written by a newer piezohyst (schema version {version}; "
-                             f"this one reads up to {SCHEMA_VERSION}); upgrade piezohyst")
+    schema_version(doc, source)
+    if _depth(doc, MAX_DEPTH) > MAX_DEPTH:
+        raise ModelFileError(f"{source}: nested deeper than {MAX_DEPTH} levels; not a model document")
     kind = doc.get("kind")
     params = doc.get("parameters")
+    if not isinstance(kind, str):
+        raise ModelFileError(f"{source}: 'kind' is missing or not a string; the kinds are {kinds()}")
     if not isinstance(params, dict):
         raise ModelFileError(f"{source}: 'parameters' is missing or not an object")
     try:
-        if kind == "prandtl-ishlinskii":
-            return PrandtlIshlinskii(
-                thresholds=params["thresholds"], weights=params["weights"],
-                initial_state=params.get("initial_state"), offset=params.get("offset", 0.0),
-                input_offset=params.get("input_offset", 0.0),
-            )
-        if kind == "bouc-wen":
-            names = ("m", "b", "k", "d1", "alpha", "beta", "gamma", "offset", "h0")
-            return BoucWen(**{n: params[n] for n in names if n in params})
+        kind_class(kind)
+    except ValueError:
+        raise ModelFileError(f"{source}: unknown model kind {kind!r}; known kinds are {kinds()}") from None
+    try:
+        return registry_from_dict(kind, params)
     except KeyError as exc:
         raise ModelFileError(f"{source}: parameter {exc} is missing") from None
     except (ValueError, TypeError) as exc:
         raise ModelFileError(f"{source}: {exc}") from None
-    raise ModelFileError(f"{source}: unknown model kind {kind!r}; known kinds are {list(KINDS)}")
 
 
 def load_model_document(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The raw JSON document of a model file (model, fit figures, data hash)."""
     p = Path(path)
     try:
+        if p.stat().st_size > MAX_FILE_BYTES:
+            raise ModelFileError(f"{p}: {p.stat().st_size} bytes is too large for a model file "
+                                 f"(the limit is {MAX_FILE_BYTES} bytes)")
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ModelFileError(f"{p}: no such file") from None
-    except (IsADirectoryError, UnicodeDecodeError) as exc:
+    except (IsADirectoryError, UnicodeDecodeError, PermissionError) as exc:
         raise ModelFileError(f"{p}: cannot read it as a model file ({exc})") from None
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ModelFileError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except RecursionError:
+        raise ModelFileError(f"{p}: nested too deeply to be a model file") from None
+    if _depth(doc, MAX_DEPTH) > MAX_DEPTH:
+        raise ModelFileError(f"{p}: nested deeper than {MAX_DEPTH} levels; not a model file")
     return doc  # type: ignore[no-any-return]
 
 
 def load_model(path: str | os.PathLike[str]) -> Any:
-    """Load a model saved by :func:`save_model` (any schema version up to this one's)."""
+    """Load a model saved by :func:`save_model` (any kind, any schema version up to this one's)."""
     p = Path(path)
     return model_from_dict(load_model_document(p), source=str(p))

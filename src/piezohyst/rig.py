@@ -48,7 +48,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import asdict, dataclass, fields, replace
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 
@@ -57,33 +57,7 @@ from ._numba import njit
 from ._validation import FloatArray, as_scalar, as_signal
 from .data import Dataset
 from .models.bouc_wen import bw_h_update, bw_params, mech_step
-
-
-@runtime_checkable
-class Plant(Protocol):
-    """What ``track`` and ``commission`` need from a plant, real or simulated.
-
-    ``dt`` is the sample period in seconds; ``reset()`` brings the plant to rest; ``step(u)``
-    applies the command ``u`` (volts) for one sample and returns the measured displacement (µm).
-    A hardware adapter that does these three things works everywhere a :class:`VirtualRig` does.
-    """
-
-    dt: float
-
-    def reset(self) -> None: ...
-
-    def step(self, u: float) -> float: ...
-
-
-def open_loop(plant: Any, u: Any) -> Dataset:
-    """An open-loop run of any Plant from rest: ``plant.excite(u)`` when it has one (compiled for
-    the VirtualRig), else ``reset()`` and one ``step`` per sample."""
-    if hasattr(plant, "excite"):
-        return plant.excite(u)  # type: ignore[no-any-return]
-    x = as_signal("u", u)
-    plant.reset()
-    y = np.array([float(plant.step(v)) for v in x])
-    return Dataset(np.arange(x.size) * plant.dt, x, y, {"source": type(plant).__name__})
+from .plant import Plant, open_loop  # noqa: F401  (Plant and open_loop lived here)
 
 
 class ClippingWarning(UserWarning):

@@ -29,12 +29,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
 from .._numba import njit
 from .._validation import FloatArray, as_scalar, as_signal
+from .base import need_dt, register_kind
 
 Hold = Literal["foh", "zoh"]
 
@@ -228,6 +229,7 @@ def _check_hold(hold: str) -> bool:
     return hold == "foh"
 
 
+@register_kind("bouc-wen", "bw", "boucwen")
 @dataclass(frozen=True)
 class BoucWen:
     """The paper's Bouc-Wen model of a piezo stack driving a flexure, eqs. (7)-(8).
@@ -319,6 +321,36 @@ class BoucWen:
     def stepper(self, dt: float, *, hold: Hold = "foh") -> "BoucWenStepper":
         """A streaming simulator on the same kernel as :meth:`simulate`."""
         return BoucWenStepper(self, dt, hold=hold)
+
+    # -- the model protocol (piezohyst.models.base) ---------------------------------------------
+    output_unit: ClassVar[str] = "m"
+    dynamic: ClassVar[bool] = True
+    is_invertible: ClassVar[bool] = True  # eq. (10) solves for the command at every sample
+
+    def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The displacement in µm (the protocol's common unit): ``simulate(u, dt) * 1e6``."""
+        return self.simulate(u, need_dt(dt, self.kind)) * 1e6
+
+    def compensator(self, dt: float | None = None, *, u_range: Any = None,
+                    max_slew: float | None = None) -> Any:
+        """The hysteresis-estimate feedforward of eq. (10) (rate independent: ``dt`` unused)."""
+        from .bouc_wen_inverse import BoucWenFeedforward
+
+        return BoucWenFeedforward(self, u_range=u_range, max_slew=max_slew)
+
+    def to_dict(self) -> dict[str, float]:
+        return self.parameters()
+
+    @classmethod
+    def from_dict(cls, params: dict[str, Any]) -> "BoucWen":
+        names = ("m", "b", "k", "d1", "alpha", "beta", "gamma", "offset", "h0")
+        missing = [n for n in names[:6] if n not in params]
+        if missing:
+            raise KeyError(missing[0])
+        unknown = set(params) - set(names)
+        if unknown:
+            raise ValueError(f"unknown Bouc-Wen parameter(s) {sorted(unknown)}")
+        return cls(**{n: params[n] for n in names if n in params})
 
 
 def solve_ivp_reference(model: BoucWen, u: Any, dt: float, *, method: str = "LSODA", rtol: float = 1e-10) -> tuple[FloatArray, FloatArray]:

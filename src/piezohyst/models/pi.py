@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from .._validation import FloatArray, as_scalar, as_signal, frozen
+from .base import Compensator, check_dt, register_kind
 from .play import pi_simulate, pi_step
 
 
@@ -57,6 +58,7 @@ def _check_thresholds(r: FloatArray) -> None:
         )
 
 
+@register_kind("prandtl-ishlinskii", "pi", "p-i")
 @dataclass(frozen=True, eq=False)
 class PrandtlIshlinskii:
     """Prandtl-Ishlinskii hysteresis model, eq. (3), with optional offsets.
@@ -88,6 +90,10 @@ class PrandtlIshlinskii:
     >>> np.allclose(pi.inverse().simulate(pi.simulate(u)), u)
     True
     """
+
+    kind: ClassVar[str]
+    output_unit: ClassVar[str] = "um"
+    dynamic: ClassVar[bool] = False
 
     thresholds: FloatArray
     weights: FloatArray
@@ -146,8 +152,12 @@ class PrandtlIshlinskii:
         return int(self.thresholds.size)
 
     # -- simulation -----------------------------------------------------------------------
-    def simulate(self, u: Any) -> FloatArray:
-        """Output of eq. (3) for the input signal ``u``, starting from ``initial_state``."""
+    def simulate(self, u: Any, dt: float | None = None) -> FloatArray:
+        """Output of eq. (3) for the input signal ``u``, starting from ``initial_state``.
+
+        The model is rate independent: ``dt`` is accepted (every kind takes it) and unused.
+        """
+        check_dt(dt, None, self.kind)
         x = as_signal("u", u)
         z = np.array(self.initial_state)
         return pi_simulate(x, self.thresholds, self.weights, z, self.input_offset, self.offset)
@@ -159,9 +169,51 @@ class PrandtlIshlinskii:
         x = as_signal("u", u) - self.input_offset
         return play_outputs(np.ascontiguousarray(x), self.thresholds, np.array(self.initial_state))
 
-    def stepper(self) -> "PIStepper":
+    def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The output in µm (the protocol's common unit; the same as :meth:`simulate`)."""
+        return self.simulate(u, dt)
+
+    def stepper(self, dt: float | None = None) -> "PIStepper":
         """A streaming evaluator: ``s.step(u_k)`` gives ``y(k)``, on the same kernel."""
+        check_dt(dt, None, self.kind)
         return PIStepper(self)
+
+    def compensator(self, dt: float | None = None, *, u_range: Any = None,
+                    max_slew: float | None = None) -> "InversePIFeedforward":
+        """The inverse-P-I feedforward, eqs. (12)-(15): desired µm in, volts out."""
+        check_dt(dt, None, self.kind)
+        return InversePIFeedforward(self, u_range=u_range, max_slew=max_slew)
+
+    # -- files ----------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """The parameters as plain data (see :mod:`piezohyst.modelio`)."""
+        return {"thresholds": self.thresholds.tolist(), "weights": self.weights.tolist(),
+                "initial_state": self.initial_state.tolist(), "offset": self.offset,
+                "input_offset": self.input_offset}
+
+    @classmethod
+    def from_dict(cls, params: dict[str, Any]) -> "PrandtlIshlinskii":
+        return cls(thresholds=params["thresholds"], weights=params["weights"],
+                   initial_state=params.get("initial_state"), offset=params.get("offset", 0.0),
+                   input_offset=params.get("input_offset", 0.0))
+
+    def with_extra_slope(self, kappa: float) -> "PrandtlIshlinskii":
+        """``P[u] + kappa u``: the same model with ``kappa`` added to ``w_1`` (``r_1 = 0``, so
+        ``H_r1[u] = u``). Rate-dependent wrappers invert their instantaneous map through it."""
+        w = np.array(self.weights)
+        w[0] += float(kappa)
+        return PrandtlIshlinskii(self.thresholds, w, self.initial_state, self.offset, self.input_offset)
+
+    def slope_inverse(self, kappa: float = 0.0) -> "PIStepper":
+        """A stepper that solves ``P[v] + kappa v = target`` for v, sample by sample, exactly:
+        the analytic inverse (eqs. 12-15) of :meth:`with_extra_slope`. Used by rate-dependent
+        wrappers (:mod:`piezohyst.models.rate`)."""
+        return PIStepper(self.with_extra_slope(kappa).inverse())
+
+    @property
+    def min_slope(self) -> float:
+        """The smallest slope of any branch: the smallest partial sum of the weights."""
+        return float(self.partial_sums.min())
 
     # -- inverse, eqs. (12)-(15) ----------------------------------------------------------
     @property
@@ -252,3 +304,44 @@ class PIStepper:
         if not math.isfinite(x):
             raise ValueError(f"u_k must be finite, got {u_k!r}")
         return float(pi_step(x, self._r, self._w, self._z, self._in, self._out))
+
+
+class InversePIFeedforward(Compensator):
+    """Inverse P-I feedforward: ``u = P^-1[x_d]`` (eqs. 12-15), the compensator of a P-I model.
+
+    Parameters
+    ----------
+    pi_model : PrandtlIshlinskii
+        The identified forward model, input V, output µm; it must be invertible.
+    u_range, max_slew : optional
+        Output limits (see :class:`~piezohyst.models.base.Compensator`).
+
+    Examples
+    --------
+    >>> import piezohyst as ph
+    >>> pi = ph.PrandtlIshlinskii(ph.equal_thresholds(3, 100.0), [0.02, 0.002, 0.001])
+    >>> ff = ph.InversePIFeedforward(pi)
+    >>> x_d = ph.sinusoid(1.0, 1, 0.1, 1.9, 1e-3)
+    >>> bool(abs(pi.simulate(ff.command(x_d)) - x_d).max() < 1e-9)
+    True
+    """
+
+    def __init__(self, pi_model: PrandtlIshlinskii, *, u_range: Any = None, max_slew: float | None = None):
+        if not isinstance(pi_model, PrandtlIshlinskii):
+            raise TypeError(f"pi_model must be a PrandtlIshlinskii, got {type(pi_model).__name__}")
+        super().__init__(u_range=u_range, max_slew=max_slew)
+        self.model = pi_model
+        self.inverse = pi_model.inverse()  # raises ValueError naming the failing partial sum
+        self._stepper = PIStepper(self.inverse)
+
+    def _reset(self) -> None:
+        self._stepper.reset()
+
+    def _step(self, x_d: float) -> float:
+        return self._stepper.step(x_d)
+
+    def _command(self, x_d: FloatArray) -> FloatArray:
+        return self.inverse.simulate(x_d)
+
+    def __repr__(self) -> str:
+        return f"InversePIFeedforward({self.model!r})"

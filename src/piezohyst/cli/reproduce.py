@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .cli import _REGISTRY, _console, _print_json
-from .cli_rig import add_rig_options, rig_from_args
+from ._common import console, print_json
+from ._common import add_rig_options, rig_from_args
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from ._fileio import atomic_write_text, check_writable
-    from .experiments.paper import FIGURES, report_markdown, run_paper_experiment, write_figures
+    from .._fileio import atomic_write_text, check_writable
+    from ..experiments.paper import FIGURES, report_markdown, run_paper_experiment, write_figures
 
     out = Path(args.out) if args.out else None
     if out is not None:  # refuse before an expensive run, not after
@@ -25,7 +25,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
         total = 3 + 1 + 2 + 2 + 3 * 4 + 1 + 3
         with Progress(TextColumn("{task.description:<55}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                      TimeElapsedColumn(), console=_console(stderr=True), transient=True) as bar:
+                      TimeElapsedColumn(), console=console(stderr=True), transient=True) as bar:
             task = bar.add_task("starting", total=total)
 
             def on_step(desc: str) -> None:
@@ -39,20 +39,20 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         paths = write_figures(exp, out, force=args.force)
         written += [str(p) for p in paths.values()]
         written.append(str(atomic_write_text(out / "report.md", report_markdown(exp), force=args.force)))
-        from ._fileio import producer
+        from .._fileio import producer
 
         doc = {"producer": producer(), **exp.to_dict()}
         written.append(str(atomic_write_text(out / "results.json", json.dumps(_clean(doc), indent=2) + "\n",
                                              force=args.force)))
     if args.json:
-        _print_json(_clean({**exp.to_dict(), "written": written}))
+        print_json(_clean({**exp.to_dict(), "written": written}))
         return 0
     _print_tables(exp, written)
     return 0
 
 
 def _clean(obj):  # type: ignore[no-untyped-def]
-    from ._fileio import to_jsonable
+    from .._fileio import to_jsonable
 
     return to_jsonable(obj)
 
@@ -60,10 +60,10 @@ def _clean(obj):  # type: ignore[no-untyped-def]
 def _print_tables(exp, written) -> None:  # type: ignore[no-untyped-def]
     from rich.table import Table
 
-    from . import paper_values as pv
-    from .experiments.paper import MODEL_TITLES, MODELS
+    from .. import paper_values as pv
+    from ..experiments.paper import MODEL_TITLES, MODELS
 
-    con = _console()
+    con = console()
     for m in MODELS:
         t = Table(title=MODEL_TITLES[m] + " - virtual rig beside the paper")
         t.add_column("Excitation")
@@ -77,7 +77,7 @@ def _print_tables(exp, written) -> None:  # type: ignore[no-untyped-def]
         tu = exp.tuning[m]
         con.print(f"  PID around it: kp={tu.kp:g}, ki={tu.ki:.4g} 1/s, kd={tu.kd:g} ({tu.method})")
     if exp.ablation:
-        t = Table(title="Table III - piezohyst: best feedforward alone and with feedback (targets of issue #7)")
+        t = Table(title="Table III - piezohyst: best feedforward alone and with feedback (piezohyst's targets)")
         for c in ("Excitation", "e_max µm", "e_max %", "target", "RMSE µm", "RMSE %", "target", "met"):
             t.add_column(c, justify="left" if c == "Excitation" else "right")
         for r in exp.table_piezohyst():
@@ -85,7 +85,7 @@ def _print_tables(exp, written) -> None:  # type: ignore[no-untyped-def]
                       f"{r['rmse_um']:.4f}", f"{r['rmse_percent']:.2f}", f"<= {r['target_rmse_percent']:g}",
                       "yes" if r["meets_target"] else "NO")
         con.print(t)
-        from .experiments.paper import ABLATION
+        from ..experiments.paper import ABLATION
 
         t = Table(title="Ablation: e_max % of span / RMSE nm, each row adds one means")
         t.add_column("configuration")
@@ -124,5 +124,3 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--json", action="store_true", help="print the results as JSON only")
     add_rig_options(p)
 
-
-_REGISTRY.append(register)

@@ -3,48 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from .cli import _REGISTRY, UsageError, _console, _freqs, _print_json
-
-
-def add_rig_options(p: argparse.ArgumentParser) -> None:
-    """Options that choose the virtual rig (shared by every command that runs on it)."""
-    p.add_argument("--seed", type=int, default=0, help="noise seed of the virtual rig (default 0)")
-    p.add_argument("--rig-gamma", type=float, default=None, help="Bouc-Wen gamma of the rig (asymmetric loop; paper: 0)")
-    p.add_argument("--rig-creep-scale", type=float, default=None, help="multiply the rig's creep (default 1)")
-    p.add_argument("--rig-noise-scale", type=float, default=None, help="multiply the rig's sensor noise (default 1)")
-    p.add_argument("--rig-settings", default=None, metavar="JSON", help="rig settings file (RigSettings fields)")
-
-
-def rig_from_args(args: argparse.Namespace):  # type: ignore[no-untyped-def]
-    from .rig import RigSettings, VirtualRig
-
-    settings = RigSettings()
-    if getattr(args, "rig_settings", None):
-        try:
-            doc = json.loads(Path(args.rig_settings).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise UsageError(f"{args.rig_settings}: no such file") from None
-        except json.JSONDecodeError as exc:
-            raise UsageError(f"{args.rig_settings}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-        if not isinstance(doc, dict):
-            raise UsageError(f"{args.rig_settings}: expected a JSON object of rig settings")
-        try:
-            settings = RigSettings.from_dict(doc.get("rig", doc))
-        except (TypeError, ValueError) as exc:
-            raise UsageError(f"{args.rig_settings}: {exc}") from None
-    over = {}
-    if getattr(args, "rig_gamma", None) is not None:
-        over["gamma"] = args.rig_gamma
-    if getattr(args, "rig_creep_scale", None) is not None:
-        over["creep_scale"] = args.rig_creep_scale
-    if getattr(args, "rig_noise_scale", None) is not None:
-        if args.rig_noise_scale < 0:
-            raise UsageError("--rig-noise-scale must be >= 0")
-        over["noise_rms_um"] = settings.noise_rms_um * args.rig_noise_scale
-    return VirtualRig(settings, seed=args.seed, **over)
+from ._common import add_rig_options, console, freqs, print_json, rig_from_args
 
 
 def cmd_rig(args: argparse.Namespace) -> int:
@@ -52,8 +13,8 @@ def cmd_rig(args: argparse.Namespace) -> int:
 
     import piezohyst as ph
 
-    from . import plots
-    from ._fileio import check_writable
+    from .. import plots
+    from .._fileio import check_writable
 
     rig = rig_from_args(args)
     out = Path(args.out) if args.out else None
@@ -75,7 +36,7 @@ def cmd_rig(args: argparse.Namespace) -> int:
         plots.use_headless_backend()
         lines = plots.plot_loops(runs, title=f"Virtual rig, open loop, {args.u_low:g}-{args.u_high:g} V sinusoids (cf. paper Fig. 2)")
         plots.save(lines[0].axes, fig_path, force=args.force)
-        from ._fileio import atomic_write, producer
+        from .._fileio import atomic_write, producer
 
         def write(tmp):  # type: ignore[no-untyped-def]
             n = max(len(d) for _, d in columns)
@@ -94,7 +55,7 @@ def cmd_rig(args: argparse.Namespace) -> int:
     result = {"rig": rig.settings.to_dict(), "seed": args.seed, "loops": rows,
               "written": [str(fig_path), str(csv_path)] if out else []}
     if args.json:
-        _print_json(result)
+        print_json(result)
         return 0
     from rich.table import Table
 
@@ -104,7 +65,7 @@ def cmd_rig(args: argparse.Namespace) -> int:
     for r in rows:
         t.add_row(f"{r['freq_hz']:g}", f"{r['span_um']:.4f}", f"{r['width_um']:.4f}", f"{r['width_percent']:.1f}",
                   str(r["clipped_samples"]))
-    con = _console()
+    con = console()
     con.print(t)
     if out is not None:
         con.print(f"wrote {fig_path} and {csv_path}")
@@ -114,7 +75,7 @@ def cmd_rig(args: argparse.Namespace) -> int:
 def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p = add("rig", cmd_rig, "Drive the virtual rig open loop with sinusoids and show its loops (the paper's Fig. 2).",
             "piezohyst rig --freq 1,3,5 --out loops/")
-    p.add_argument("--freq", type=_freqs, default=[1.0, 3.0, 5.0], help="frequencies in Hz (default 1,3,5)")
+    p.add_argument("--freq", type=freqs, default=[1.0, 3.0, 5.0], help="frequencies in Hz (default 1,3,5)")
     p.add_argument("--cycles", type=float, default=3, help="cycles per frequency (default 3)")
     p.add_argument("--u-low", type=float, default=0.0, help="lowest voltage (default 0)")
     p.add_argument("--u-high", type=float, default=100.0, help="highest voltage (default 100)")
@@ -123,5 +84,3 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--json", action="store_true", help="print the figures as JSON only")
     add_rig_options(p)
 
-
-_REGISTRY.append(register)

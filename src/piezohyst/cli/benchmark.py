@@ -4,27 +4,27 @@ from __future__ import annotations
 
 import argparse
 
-from .cli import _REGISTRY, _console, _print_json
+from ._common import console, print_json
 
 
 def cmd_benchmark(args: argparse.Namespace) -> int:
-    from .data import data_dir
-    from .experiments.boucwen_benchmark import PUBLISHED, QUOTED_FLOOR, run_benchmark
+    from ..data import data_dir
+    from ..experiments.boucwen_benchmark import PUBLISHED, QUOTED_FLOOR, run_benchmark
 
     path = args.data or str(data_dir() / "bouc-wen-benchmark" / "bouc-wen.mat")
     if args.json:
         res = run_benchmark(path, seed=args.seed)
-        _print_json(res.to_dict())
+        print_json(res.to_dict())
         return 0
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                  console=_console(stderr=True), transient=True) as bar:
+                  console=console(stderr=True), transient=True) as bar:
         task = bar.add_task("loading", total=None)
         res = run_benchmark(path, seed=args.seed, on_step=lambda s: bar.update(task, description=s))
     d = res.to_dict()
-    con = _console()
+    con = console()
     t = Table(title="Bouc-Wen benchmark: multisine test record, RMS error (m), lower is better")
     t.add_column("method")
     t.add_column("RMS error (m)", justify="right")
@@ -63,5 +63,3 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--seed", type=int, default=0, help="PSO seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the results as JSON only")
 
-
-_REGISTRY.append(register)

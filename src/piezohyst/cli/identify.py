@@ -1,0 +1,201 @@
+"""``piezohyst identify``: fit a model (any kind, or the best on held-out data) and save it."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ._common import UsageError, add_data_options, console, load_cli_dataset, print_json, sample_range
+
+#: --model choices: "auto" and every kind name and alias (from the registry, at parse time)
+_MODEL_HELP = ("model kind: auto (every kind, chosen on held-out data), pi (the paper's P-I), bouc-wen (the "
+               "paper's), rate-dependent, asymmetric-pi, preisach (default auto)")
+
+
+def _delay(text: str) -> Any:
+    if text == "auto":
+        return text
+    try:
+        d = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of samples >= 0 or 'auto', got {text!r}") from None
+    if d < 0:
+        raise argparse.ArgumentTypeError(f"the delay must be >= 0 samples, got {d}")
+    return d
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    import piezohyst as ph
+    from .._fileio import check_writable
+    from ..models.base import kind_class
+
+    kind = args.model
+    if kind != "auto":
+        try:
+            kind = kind_class(kind).kind
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    if args.output:  # refuse before the fit, not after it
+        check_writable(args.output, args.force)
+    method = args.method or ("pso" if kind == "bouc-wen" else "lsq" if kind == "prandtl-ishlinskii" else "select")
+    if method == "pso" and kind not in ("bouc-wen", "prandtl-ishlinskii"):
+        raise UsageError(f"--method pso is for --model pi or bouc-wen (the paper's); {kind} is fitted by least squares")
+    if method == "lsq" and kind not in ("prandtl-ishlinskii",):
+        raise UsageError("--method lsq is for --model pi; the other kinds choose their structure on held-out data "
+                         "(--method select, their default)")
+    ds = load_cli_dataset(args.data, args)
+    start, stop = args.train
+    n = len(ds)
+    for name, (a, b) in (("--train", args.train), ("--validate", args.validate)):
+        if (a is not None and not 0 <= a < n) or (b is not None and not 0 < b <= n) or (
+                a is not None and b is not None and b - a < 2):
+            raise UsageError(f"{name} {a if a is not None else ''}:{b if b is not None else ''} is outside the "
+                             f"file's {n} samples (or holds fewer than 2)")
+    train = ds.slice(start, stop) if (start is not None or stop is not None) else ds
+    # validation sets: (name, data simulated from its first sample, first sample scored)
+    validation = []
+    vstart, vstop = args.validate
+    if vstart is not None or vstop is not None:
+        # simulate the record from its start, so the model carries its memory into the slice
+        validation.append(("samples %s:%s" % (vstart or "", vstop or ""), ds.slice(None, vstop), vstart or 0))
+    for vf in args.validate_data or []:
+        validation.append((vf, load_cli_dataset(vf, args), 0))
+    show = not args.json
+    if args.delay is None:
+        args.delay = "auto" if method == "select" else 0
+    if kind == "bouc-wen" and method == "pso":
+        if args.delay == "auto":
+            raise UsageError("--delay auto is not available for --model bouc-wen with --method pso; give the delay in samples")
+        fit = ph.fit_bouc_wen(train.u, train.y, train.dt, seed=args.seed, delay=args.delay,
+                              max_iter=args.iterations, polish=not args.no_polish, progress=show)
+    elif kind == "prandtl-ishlinskii" and method in ("lsq", "pso"):
+        fit = ph.fit_pi(train.u, train.y, n=args.n or 20, method=method, seed=args.seed, delay=args.delay,
+                        max_iter=args.iterations, progress=show and method == "pso")
+    else:
+        vsets = [(vd.u, vd.y, first) for _, vd, first in validation]
+        fit = _select(ph, train, kind, args, vsets, show)
+    vrows = []
+    for name, vd, first in validation:
+        pred = fit.predict(vd.u, vd.dt)
+        d = fit.delay
+        resid = (vd.y[d:] - pred[: pred.size - d] if d else vd.y - pred)[max(first - d, 0):]
+        span = float(np.ptp(vd.y[first:]))
+        # the validation record's sensor zero may differ: report with and without refitting it
+        vrows.append({"data": name, "n_samples": int(resid.size), "rmse": float(np.sqrt(np.mean(resid**2))),
+                      "rmse_percent_of_span": 100.0 * float(np.sqrt(np.mean(resid**2))) / span if span > 0 else None,
+                      "rmse_offset_refit": float(np.std(resid)),
+                      "max_abs_error": float(np.max(np.abs(resid - resid.mean())))})
+    out_path = None
+    if args.output:
+        out_path = str(ph.save_model(fit.model, args.output, fit=fit, dataset=train, force=args.force))
+    result = {"model": fit.model.kind, "fit": fit.summary(), "parameters": fit.model.to_dict(),
+              "invertible": bool(fit.model.is_invertible), "validation": vrows, "warnings": list(fit.warnings),
+              "train_samples": len(train), "written": out_path}
+    if args.json:
+        print_json(result)
+        return 0
+    _print_report(fit, vrows, out_path, ds, train)
+    return 0
+
+
+def _select(ph: Any, train: Any, kind: str, args: argparse.Namespace, vsets: list[Any], show: bool) -> Any:
+    """``fit_model`` with a spinner naming the stage (on stderr; nothing with --json)."""
+    opts = dict(validation=vsets or None, delay=args.delay, n=args.n, seed=args.seed,
+                bouc_wen_options={"max_iter": args.iterations, "polish": not args.no_polish})
+    dt = train.dt
+    if not show:
+        return ph.fit_model(train.u, train.y, dt, kind, **opts)
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                  console=console(stderr=True), transient=True) as bar:
+        task = bar.add_task("identifying", total=None)
+        return ph.fit_model(train.u, train.y, dt, kind, progress=lambda s: bar.update(task, description=f"choosing: {s}"),
+                            **opts)
+
+
+def _print_report(fit: Any, vrows: list[dict[str, Any]], out_path: str | None, ds: Any, train: Any) -> None:
+    from rich.table import Table
+
+    con = console()
+    src = ds.meta.get("source", "data")
+    part = f"{len(train)} of {len(ds)} samples" if len(train) != len(ds) else f"{len(ds)} samples"
+    con.print(f"Identified model: {fit.model.kind}, on {part} of {src}")
+    cands = fit.info.get("candidates")
+    if cands:
+        t = Table(title=f"Candidates, scored on {fit.info['holdout']['on']} (lower is better)")
+        for c in ("", "candidate", "hold-out RMSE", "% of span", "parameters"):
+            t.add_column(c, justify="left" if c in ("", "candidate") else "right")
+        for c in sorted(cands, key=lambda c: c["holdout_rmse"])[:15]:
+            pct = c["holdout_percent_of_span"]
+            t.add_row("*" if c["chosen"] else "", c["label"], f"{c['holdout_rmse']:.4g}",
+                      f"{pct:.2f}" if pct is not None else "-", str(c["n_parameters"]))
+        con.print(t)
+        if len(cands) > 15:
+            con.print(f"({len(cands) - 15} more candidates in --json)")
+    elif fit.model.kind == "prandtl-ishlinskii":
+        t = Table(title="P-I weights")
+        for c in ("i", "r_i (V)", "w_i", "partial sum"):
+            t.add_column(c, justify="right")
+        m = fit.model
+        for i, (r, w, s) in enumerate(zip(m.thresholds, m.weights, m.partial_sums), 1):
+            t.add_row(str(i), f"{r:.4g}", f"{w:.5g}", f"{s:.5g}")
+        con.print(t)
+        con.print(f"offset {m.offset:.6g} (output units); invertible: {m.is_invertible}")
+    elif fit.sensitivity:
+        t = Table(title="Bouc-Wen parameters")
+        for c in ("parameter", "value", "RMSE rise for 10 % change", "constrained by the data?"):
+            t.add_column(c, justify="right" if c != "parameter" else "left")
+        units = {"m": "kg", "b": "N s/m", "k": "N/m", "d1": "m/V", "alpha": "", "beta": "1/V", "gamma": "1/V"}
+        for name, unit in units.items():
+            s = fit.sensitivity.get(name, float("nan"))
+            t.add_row(name, f"{getattr(fit.model, name):.5g} {unit}", f"{100 * s:.3g} %", "barely" if s < 0.01 else "yes")
+        con.print(t)
+    span = float(train.y.max() - train.y.min())
+    con.print(f"fit RMSE {fit.rmse:.5g} (units of y; {100 * fit.rmse / span:.2f} % of span) | {fit.method} | "
+              f"{fit.time_s:.2f} s" + (f" | delay {fit.delay} samples" if fit.delay else ""))
+    if "pso_rmse" in fit.info and fit.method.endswith("polish"):
+        con.print(f"PSO alone reached RMSE {fit.info['pso_rmse']:.5g}; the local refinement brought it to {fit.rmse:.5g}")
+    for v in vrows:
+        pct = v["rmse_percent_of_span"]
+        con.print(f"validation on {v['data']}: RMSE {v['rmse']:.4g}" + (f" ({pct:.2f} % of span)" if pct else "")
+                  + f", with its own offset {v['rmse_offset_refit']:.4g}, max |error| {v['max_abs_error']:.4g} "
+                  f"({v['n_samples']} samples)")
+    con.print(f"invertible: {bool(fit.model.is_invertible)}")
+    for w in fit.warnings:
+        con.print(f"warning: {w}")
+    if out_path:
+        con.print(f"model written to {out_path}")
+
+
+def register(sub: Any, add: Any) -> None:
+    p = add("identify", cmd_identify,
+            "Identify a hysteresis model from a voltage/displacement record (the best kind and structure on "
+            "held-out data, or the kind you name) and save it as JSON.",
+            "piezohyst identify data/piezo-dbo/Model_Vi_Do.dat --u-col 0 --y-col 4 --fs 200 "
+            "--model auto --train 0:4000 --validate 4000:8000 -o model.json")
+    p.add_argument("data", help="data file: .csv/.txt/.dat (header or --u-col/--y-col), .mat or .npz")
+    add_data_options(p)
+    p.add_argument("--model", default="auto", metavar="KIND", help=_MODEL_HELP)
+    p.add_argument("--method", choices=("select", "lsq", "pso"), default=None,
+                   help="select: choose the structure on held-out data (default for every kind but the paper's); "
+                   "lsq: pi by least squares with fixed operators (pi default); pso: the paper's particle swarm "
+                   "(bouc-wen default, or pi)")
+    p.add_argument("--n", type=int, default=None,
+                   help="play operators (pi) or grid levels (preisach); default: chosen on held-out data (20 for --method lsq/pso)")
+    p.add_argument("--seed", type=int, default=0, help="PSO seed (default 0)")
+    p.add_argument("--iterations", type=int, default=200, help="PSO iterations (default 200)")
+    p.add_argument("--no-polish", action="store_true", help="bouc-wen: PSO only, no local refinement")
+    p.add_argument("--delay", type=_delay, default=None,
+                   help="samples by which the output lags the input, or 'auto' (default: searched on held-out data "
+                   "with --method select, 0 with lsq/pso)")
+    p.add_argument("--train", type=sample_range, default=(None, None), metavar="START:STOP", help="fit on these samples only")
+    p.add_argument("--validate", type=sample_range, default=(None, None), metavar="START:STOP",
+                   help="choose on, and report the error on, these samples of the same file (simulated from its start)")
+    p.add_argument("--validate-data", action="append", metavar="FILE",
+                   help="choose on, and report the error on, another file (same columns; may repeat)")
+    p.add_argument("-o", "--output", help="write the model here (JSON)")
+    p.add_argument("--force", action="store_true", help="overwrite the output file if it exists")
+    p.add_argument("--json", action="store_true", help="print the results as JSON only")

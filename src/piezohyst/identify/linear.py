@@ -1,0 +1,456 @@
+"""Linear-in-parameters identification: P-I, asymmetric P-I and Preisach models, with lags.
+
+Every model these fits produce has an output that is linear in its parameters once its
+*structure* is fixed (:class:`Structure`: the static kind and size, the output map's knots, the
+lags' time constants, the input lag, the sensor delay). For a fixed structure the best
+parameters are one bounded linear least-squares problem, solved to its global optimum
+(:func:`~piezohyst.identify.lsq.bounded_lstsq`). The structure itself is chosen on held-out
+data by :func:`piezohyst.identify.fit_model`.
+
+The constraints are written as bounds through a change of variables, so that every fitted model
+is invertible with a stable inverse (see :mod:`piezohyst.models.rate`):
+
+* the static part's smallest branch slope is ``s0`` (P-I: every partial sum of the weights
+  ``S_j = s0 + t_j``, ``t_j >= 0``; Preisach: the reversible slope, all weights ``>= 0``);
+* the output lags' weights are ``c_i = p_i - q_i`` (``p, q >= 0``) and
+  ``s0 = margin + e + sum_i q_i`` (``e >= 0``): the stability condition
+  ``s0 + sum_i min(c_i, 0) >= margin`` holds for every feasible point, and every model that
+  satisfies it is feasible;
+* the asymmetric P-I model's output map ``g^-1(y) = y + sum phi_j D_j(y)`` has its slopes written
+  as ``MAP_MARGIN + tau``, ``tau >= 0``, so ``g`` is increasing with slopes at most
+  ``1 / MAP_MARGIN`` times the inner model's, and as flat as the data show where the stage
+  saturates (Kuhnen's "generalised error" formulation: ``P[u] = g^-1(y)`` is linear in the P-I
+  weights and ``phi``).
+
+``margin`` defaults to :data:`DEFAULT_MARGIN` times the data's mean slope ``ptp(y) / ptp(u)``:
+the compensator's gain right after a reversal is at most ``1 / margin``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .._numba import njit
+from .._validation import FloatArray
+from ..models.asymmetric_pi import AsymmetricPI, OutputMap
+from ..models.pi import PrandtlIshlinskii, equal_thresholds
+from ..models.play import play_outputs
+from ..models.preisach import Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs
+from ..models.rate import RateDependent, first_order_lag, lag_factor
+from .lsq import bounded_lstsq_gram
+from .result import FitResult
+
+#: Smallest branch slope a fit allows, as a fraction of the data's mean slope.
+DEFAULT_MARGIN = 0.02
+#: Smallest slope of the inverse of an asymmetric P-I model's output map (so ``g`` is at most
+#: ten times steeper than the inner model).
+MAP_MARGIN = 0.1
+#: Tikhonov weight on Preisach weights, relative to the mean diagonal of the normal equations:
+#: the interior of the Preisach plane is barely seen by major loops; this keeps it small.
+PREISACH_RIDGE = 1e-4
+
+
+@dataclass(frozen=True)
+class Structure:
+    """What is fixed before the least-squares fit (see the module docstring).
+
+    Attributes
+    ----------
+    static : {"pi", "preisach"}
+        The rate-independent part.
+    size : int
+        P-I operators, or Preisach grid levels.
+    map_knots : int
+        Knots of the asymmetric P-I model's output map (0: no map; P-I only).
+    taus : tuple of float
+        Output-lag time constants, s.
+    input_tau : float
+        Input-lag time constant, s (0: none).
+    delay : int
+        Samples by which the output lags the input.
+    thresholds : {"span", "eq4"}
+        P-I thresholds over half the input's span (operators that move in steady state) or by
+        the paper's eq. (4) over ``max|u|`` (or ``u_max`` when given).
+    """
+
+    static: str = "pi"
+    size: int = 20
+    map_knots: int = 0
+    taus: tuple[float, ...] = ()
+    input_tau: float = 0.0
+    delay: int = 0
+    thresholds: str = "span"
+    u_max: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.static not in ("pi", "preisach"):
+            raise ValueError(f"static must be 'pi' or 'preisach', got {self.static!r}")
+        if self.map_knots and self.static != "pi":
+            raise ValueError("an output map goes with a P-I static part")
+        if self.map_knots % 2:
+            raise ValueError(f"map_knots must be even (half on each side of the centre), got {self.map_knots}")
+        if self.thresholds not in ("span", "eq4"):
+            raise ValueError(f"thresholds must be 'span' or 'eq4', got {self.thresholds!r}")
+
+    @property
+    def rate_dependent(self) -> bool:
+        return bool(self.taus) or self.input_tau > 0
+
+    @property
+    def kind(self) -> str:
+        if self.map_knots:
+            return "asymmetric-pi"
+        if self.rate_dependent:
+            return "rate-dependent"
+        return "prandtl-ishlinskii" if self.static == "pi" else "preisach"
+
+    def label(self) -> str:
+        name = {"pi": f"P-I n={self.size}" + (" (eq. 4 thresholds)" if self.thresholds == "eq4" else ""),
+                "preisach": f"Preisach {self.size} levels"}[self.static]
+        if self.map_knots:
+            name = f"asymmetric {name}, {self.map_knots} map knots"
+        parts = [name]
+        if self.input_tau:
+            parts.append(f"input lag {_fmt_s(self.input_tau)}")
+        if self.taus:
+            parts.append("lags " + ",".join(_fmt_s(t) for t in self.taus))
+        parts.append(f"delay {self.delay}")
+        return "; ".join(parts)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"static": self.static, "size": self.size, "map_knots": self.map_knots,
+                "taus_s": list(self.taus), "input_tau_s": self.input_tau, "delay": self.delay,
+                "thresholds": self.thresholds}
+
+
+def _fmt_s(t: float) -> str:
+    return f"{t * 1e3:.3g} ms" if t < 1 else f"{t:.3g} s"
+
+
+@dataclass
+class Prepared:
+    """The regressors of one structure over a whole record (built once, fitted on any rows).
+
+    ``base`` holds, per sample, ``[static variables (p) | floor (1) | lags (m) | 1]``; every fit
+    of the structure is a linear change of variables of these columns (``fit_prepared``), so the
+    normal equations are kept per number of rows and a delay only removes the last rows' share.
+    """
+
+    structure: Structure
+    v: FloatArray
+    base: FloatArray  # (N, p + 1 + m + 1)
+    p: int
+    m: int
+    a_lag: FloatArray
+    decode_info: dict[str, Any]
+    _gram: dict[int, FloatArray] = field(default_factory=dict, repr=False)
+
+    def gram(self, rows: int) -> FloatArray:
+        """``B[:rows]' B[:rows]`` of the base columns, from the nearest cached row count."""
+        g = self._gram.get(rows)
+        if g is not None:
+            return g
+        bigger = [r for r in self._gram if r > rows]
+        if bigger:
+            r0 = min(bigger)
+            tail = self.base[rows:r0]
+            if r0 - rows <= 0.2 * rows:
+                g = self._gram[r0] - tail.T @ tail
+                self._gram[rows] = g
+                return g
+        b = self.base[:rows]
+        g = b.T @ b
+        self._gram[rows] = g
+        return g
+
+
+def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray | None = None) -> Prepared:
+    """Regressors of structure ``st`` for the input ``u`` (from rest).
+
+    ``u_ref`` (default ``u``) is the part of the record the structure's data-derived settings
+    (thresholds, grid) come from: the fitting rows, so nothing is read off held-out data.
+    """
+    ref = u if u_ref is None else u_ref
+    if st.rate_dependent and dt is None:
+        raise ValueError("a rate-dependent structure needs the sample period dt")
+    b = lag_factor(st.input_tau, dt) if st.input_tau else 0.0
+    v = first_order_lag(u, b) if b else np.array(u, dtype=np.float64)
+    v_ref = first_order_lag(ref, b) if b else np.asarray(ref, dtype=np.float64)
+    info: dict[str, Any] = {}
+    if st.static == "pi":
+        if st.thresholds == "eq4":
+            r = equal_thresholds(st.size, st.u_max if st.u_max else float(np.abs(v_ref).max()))
+        else:
+            half_span = 0.5 * float(np.ptp(v_ref))
+            r = np.arange(st.size, dtype=np.float64) / st.size * half_span
+        z = play_outputs(np.ascontiguousarray(v), r, np.zeros(r.size))
+        zd = z.copy()
+        zd[:, :-1] -= z[:, 1:]  # y = sum_j S_j (z_j - z_{j+1}): the partial sums' columns
+        static_cols, floor = zd, zd.sum(axis=1)  # sum of the columns = z_1 = v (r_1 = 0)
+        info["thresholds"] = r
+    else:
+        lo, hi = float(v_ref.min()), float(v_ref.max())
+        pad = 1e-9 * (hi - lo)
+        lo, hi = lo - pad, hi + pad
+        a, bb, d = grid_thresholds(lo, hi, st.size)
+        z0 = demagnetised_state(a, bb, d, 0.0)
+        static_cols = preisach_outputs(np.ascontiguousarray(v), a, bb, 1.0 / d, z0)
+        floor = np.array(v, dtype=np.float64)
+        info["grid"] = (lo, hi)
+    a_lag = np.exp(-dt / np.asarray(st.taus, dtype=np.float64)) if st.taus else np.zeros(0)
+    p, m = static_cols.shape[1], a_lag.size
+    base = np.empty((u.size, p + m + 2))
+    base[:, :p] = static_cols
+    base[:, p] = floor
+    for i, al in enumerate(a_lag):
+        base[:, p + 1 + i] = first_order_lag(v, float(al))
+    base[:, -1] = 1.0
+    return Prepared(st, v, base, p, m, a_lag, info)
+
+
+def _map_columns(y: FloatArray, knots: FloatArray, centre: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Columns, shift and bounds of the output map's variables ``tau`` (module docstring).
+
+    Returns (columns (N, K), constant (N,), upper bounds (K,)) such that
+    ``-sum_j phi_j D_j(y) = columns @ tau + constant``.
+    """
+    up = knots > centre
+    upper = np.sort(knots[up])  # outward from the centre
+    lower = np.sort(knots[~up])[::-1]
+    cols, const = [], np.zeros(y.size)
+    for side, ks in ((1, upper), (-1, lower)):
+        if not ks.size:
+            continue
+        d = [np.maximum(y - k, 0.0) if side > 0 else np.minimum(y - k, 0.0) for k in ks]
+        # slope beyond knot m = 1 + sum_{l<=m} phi_l = MAP_MARGIN + tau_m
+        # => phi_1 = tau_1 + MAP_MARGIN - 1, phi_m = tau_m - tau_{m-1}
+        const -= (MAP_MARGIN - 1.0) * d[0]
+        for m in range(ks.size):
+            nxt = d[m + 1] if m + 1 < ks.size else 0.0
+            cols.append(-(d[m] - nxt))
+    hi = np.full(len(cols), np.inf)
+    return np.column_stack(cols), const, hi
+
+
+def _decode_map(tau: FloatArray, knots: FloatArray, centre: float) -> OutputMap:
+    up = knots > centre
+    upper = np.sort(knots[up])
+    lower = np.sort(knots[~up])[::-1]
+    phi_by_knot: dict[float, float] = {}
+    i = 0
+    for ks in (upper, lower):
+        prev = None
+        for k in ks:
+            t = float(tau[i])
+            phi_by_knot[float(k)] = (t + MAP_MARGIN - 1.0) if prev is None else t - prev
+            prev = t
+            i += 1
+    ks = np.sort(knots)
+    return OutputMap(ks, [phi_by_knot[float(k)] for k in ks], centre)
+
+
+def map_knots_for(y: FloatArray, count: int) -> tuple[FloatArray, float]:
+    """Knots at the quantiles ``i / (count + 1)`` of ``y`` and the centre between the middle two."""
+    q = np.quantile(y, np.arange(1, count + 1) / (count + 1))
+    q = np.unique(q)
+    if q.size != count:
+        raise ValueError("the output takes too few distinct values for an output map")
+    centre = 0.5 * (q[count // 2 - 1] + q[count // 2])
+    return q, float(centre)
+
+
+@njit
+def _tmatvec(b: FloatArray, rows: int, y: FloatArray) -> FloatArray:  # pragma: no cover - compiled
+    """``b[:rows].T @ y``, single-threaded (BLAS threads only contend on a shared machine here)."""
+    q = b.shape[1]
+    out = np.zeros(q)
+    for k in range(rows):
+        yk = y[k]
+        for j in range(q):
+            out[j] += b[k, j] * yk
+    return out
+
+
+@njit
+def _matvec(b: FloatArray, start: int, stop: int, c: FloatArray) -> FloatArray:  # pragma: no cover - compiled
+    """``b[start:stop] @ c``."""
+    out = np.empty(stop - start)
+    q = b.shape[1]
+    for k in range(start, stop):
+        acc = 0.0
+        for j in range(q):
+            acc += b[k, j] * c[j]
+        out[k - start] = acc
+    return out
+
+
+def _design(pre: Prepared, margin: float, fit_offset: bool) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, int]:
+    """The change of variables from the design's variables to the base columns' coefficients.
+
+    Returns ``T`` and ``shift`` with ``coef = T @ x + shift`` (``coef`` multiplies ``base``), the
+    bounds of ``x``, and ``ne`` (1 when the floor has its own variable). Variables:
+    ``[t (p) | e (ne) | p_lag (m) | q_lag (m) | offset (fit_offset)]`` (module docstring).
+    """
+    st, p, m = pre.structure, pre.p, pre.m
+    # P-I: the floor column is the sum of the partial sums' columns, so a floor variable would be
+    # redundant with them (S_j = floor + t_j already); Preisach: slope = floor.
+    ne = 0 if st.static == "pi" else 1
+    nx = p + ne + 2 * m + (1 if fit_offset else 0)
+    q = p + m + 2
+    t = np.zeros((q, nx))
+    t[:p, :p] = np.eye(p)
+    if ne:
+        t[p, p] = 1.0
+    for i in range(m):
+        t[p + 1 + i, p + ne + i] = 1.0  # p_i: + lag column
+        t[p, p + ne + m + i] = 1.0  # q_i: + floor ...
+        t[p + 1 + i, p + ne + m + i] = -1.0  # ... - lag column
+    if fit_offset:
+        t[q - 1, nx - 1] = 1.0
+    shift = np.zeros(q)
+    shift[p] = margin
+    lb = np.zeros(nx)
+    ub = np.full(nx, np.inf)
+    if fit_offset:
+        lb[-1] = -np.inf
+    return t, shift, lb, ub, ne
+
+
+def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
+                 margin: float, fit_offset: bool = True,
+                 predict: tuple[int, int] | None = None) -> tuple[Any, dict[str, Any], FloatArray]:
+    """The best parameters of ``pre.structure`` on base rows ``[0, rows)`` paired with ``y``
+    (``len(y) == rows``; the caller applies the delay). Returns the model, what the solve saw,
+    and the model's prediction over base rows ``predict = (start, stop)`` (default all; µm, the
+    regressors times the parameters: the same numbers the model's ``simulate`` gives)."""
+    st, p, m = pre.structure, pre.p, pre.m
+    yy = np.asarray(y, dtype=np.float64)
+    bmat = pre.base[:rows]
+    t, shift, lb, ub, ne = _design(pre, margin, fit_offset)
+    gb = pre.gram(rows)
+    bty = _tmatvec(pre.base, rows, np.ascontiguousarray(yy))
+    # rhs = y - base @ shift; A = base @ T (+ the map's columns)
+    gram = t.T @ gb @ t
+    atb = t.T @ (bty - gb @ shift)
+    knots = centre = None
+    if st.map_knots:
+        knots, centre = map_knots_for(yy, st.map_knots)
+        mc, const, hi = _map_columns(yy, knots, centre)
+        rhs_extra = yy - _matvec(pre.base, 0, rows, shift) - const
+        a_b = bmat @ t
+        k = mc.shape[1]
+        g2 = np.empty((gram.shape[0] + k, gram.shape[0] + k))
+        g2[:-k, :-k] = gram
+        cross = a_b.T @ mc
+        g2[:-k, -k:] = cross
+        g2[-k:, :-k] = cross.T
+        g2[-k:, -k:] = mc.T @ mc
+        gram = g2
+        atb = np.concatenate([a_b.T @ rhs_extra, mc.T @ rhs_extra])
+        # the map's variables go before the offset in x; keep them last here and reorder below
+        lb = np.concatenate([lb, np.zeros(k)])
+        ub = np.concatenate([ub, hi])
+    ridge = None
+    if st.static == "preisach":
+        ridge = np.zeros(gram.shape[0])
+        ridge[:p] = PREISACH_RIDGE * float(np.mean(np.diag(gram)[:p]))
+    x = bounded_lstsq_gram(gram, atb, lb, ub, ridge=ridge)
+    nx = t.shape[1]
+    xb, tau_map = x[:nx], (x[nx:] if st.map_knots else None)
+    coef = t @ xb + shift  # coefficients of the base columns
+    tt = xb[:p]
+    e = float(xb[p]) if ne else 0.0
+    qq = xb[p + ne + m:p + ne + 2 * m]
+    offset = float(coef[-1])
+    s0 = margin + e + float(qq.sum())
+    c = coef[p + 1:p + 1 + m]
+    if st.static == "pi":
+        s_part = coef[:p] + coef[p]  # S_j = t_j + floor coefficient
+        w = np.diff(np.concatenate([[0.0], s_part]))
+        static: Any = PrandtlIshlinskii(pre.decode_info["thresholds"], w, offset=offset)
+    else:
+        lo, hi_ = pre.decode_info["grid"]
+        static = Preisach(lo=lo, hi=hi_, weights=np.maximum(tt, 0.0), slope=float(coef[p]), offset=offset)
+    model: Any = static
+    if st.rate_dependent:
+        if dt is None:
+            raise ValueError("a rate-dependent structure needs dt")
+        model = RateDependent(static, np.asarray(st.taus, dtype=np.float64), c, dt, input_tau=st.input_tau)
+    start, stop = predict if predict is not None else (0, pre.base.shape[0])
+    inner_pred = _matvec(pre.base, start, stop, coef)
+    pred = inner_pred
+    if st.map_knots:
+        omap = _decode_map(tau_map, knots, centre)  # type: ignore[arg-type]
+        model = AsymmetricPI(model, omap)
+        pred = omap.forward_map(inner_pred)
+    if st.static == "pi":
+        slack = float(tt.min())
+    else:  # inside the grid the diagonal (reversible) hysterons add to the slope
+        ii, jj = np.tril_indices(st.size)
+        lo, hi_ = pre.decode_info["grid"]
+        slack = e + float(tt[ii == jj].min()) * st.size / (hi_ - lo)
+    info = {"margin": margin, "slope_floor": s0 - e + slack,
+            "floor_at_margin": bool(slack <= 1e-6 * margin), "n_parameters": int(gram.shape[0])}
+    return model, info, pred
+
+
+def mean_slope(u: FloatArray, y: FloatArray) -> float:
+    su = float(np.ptp(u))
+    if su == 0:
+        raise ValueError("u is constant: a constant input cannot identify a hysteresis model")
+    return float(np.ptp(y)) / su
+
+
+def fit_structure(u: FloatArray, y: FloatArray, dt: float | None, st: Structure, *, n_fit: int | None = None,
+                  margin: float | None = None, fit_offset: bool = True,
+                  prepared: Prepared | None = None) -> tuple[FitResult, FloatArray]:
+    """Fit ``st`` on samples ``[0, n_fit)`` of the record (default all) and predict the whole record.
+
+    Returns the fit and the prediction over the whole record (µm), aligned with ``y`` (the
+    prediction's sample k is compared with ``y[k]``; the first ``delay`` samples repeat the first
+    prediction, as nothing is known before the record starts).
+    """
+    t0 = time.perf_counter()
+    n = u.size
+    n_fit = n if n_fit is None else int(n_fit)
+    d = st.delay
+    if n_fit - d < 10:
+        raise ValueError(f"{n_fit} samples with a delay of {d} leave too few to fit")
+    if margin is None:
+        margin = DEFAULT_MARGIN * mean_slope(u[:n_fit], y[:n_fit])
+    pre = prepared if prepared is not None else prepare(u, dt, st, u_ref=u[:n_fit])
+    model, info, pred_u = fit_prepared(pre, y[d:n_fit], n_fit - d, dt, margin=margin, fit_offset=fit_offset)
+    pred = np.concatenate([np.full(d, pred_u[0]), pred_u[: n - d]]) if d else pred_u
+    resid = y[d:n_fit] - pred[d:n_fit]
+    rmse = float(np.sqrt(np.mean(resid**2)))
+    info.update({"structure": st.to_dict(), "label": st.label()})
+    fit = FitResult(model=model, rmse=rmse, method=f"bounded least squares ({st.label()})",
+                    n_samples=int(n_fit - d), time_s=time.perf_counter() - t0, delay=int(d), info=info)
+    inst = _instantaneous_min_slope(model)
+    if info["floor_at_margin"] and inst is not None and inst <= 2.0 * margin:
+        fit.warnings.append(
+            f"the loop is nearly flat (or falling) just after reversals: the model's smallest slope there is "
+            f"{inst:.3g} per volt, at the allowed floor ({DEFAULT_MARGIN:g} of the mean slope), so the "
+            f"compensator's gain there is limited; feedback must do the rest")
+    return fit, pred
+
+
+def _instantaneous_min_slope(model: Any) -> float | None:
+    """Smallest slope of the map from this sample's input to this sample's output."""
+    inner = getattr(model, "inner", model)
+    if isinstance(inner, RateDependent):
+        return float(inner.min_slope)
+    ms = getattr(inner, "min_slope", None)
+    return float(ms) if ms is not None else None
+
+
+def with_delay(st: Structure, d: int) -> Structure:
+    return replace(st, delay=int(d))
+
+
+__all__ = ["DEFAULT_MARGIN", "Structure", "fit_structure", "prepare", "fit_prepared", "mean_slope",
+           "map_knots_for"]

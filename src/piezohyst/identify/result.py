@@ -1,0 +1,112 @@
+"""What an identification returns: :class:`FitResult`, and the checks every fit shares."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .._validation import FloatArray, as_signal
+
+
+@dataclass
+class FitResult:
+    """What an identification produced.
+
+    Attributes
+    ----------
+    model : PrandtlIshlinskii or BoucWen
+        The identified model.
+    rmse : float
+        RMSE of eq. (9) on the fitting data, in the units of ``y``.
+    method : str
+        ``"lsq"`` or ``"pso"`` (+ ``"+polish"``).
+    time_s : float
+        Wall-clock time of the fit.
+    nit, nfev : int or None
+        The optimiser's iterations and fitness evaluations.
+    history : ndarray or None
+        PSO's best fitness per iteration.
+    delay : int
+        Samples by which the output was taken to lag the input.
+    sensitivity : dict or None
+        Per parameter: relative rise of the RMSE when that parameter alone moves by 10 %
+        (for alpha and gamma, which may sit at 0: by 10 % of itself or 1 % of its search range,
+        whichever is larger). Below 1 %: barely constrained.
+    info : dict
+        Anything else worth keeping (PSO RMSE before polishing, bounds, messages; for
+        :func:`~piezohyst.identify.fit_model`, the table of candidates and their hold-out errors).
+    warnings : list of str
+        What the fit found worth a user's attention (a large or structured hold-out error, a
+        loop that no monotone model can represent, a constraint that binds).
+    """
+
+    model: Any
+    rmse: float
+    method: str
+    n_samples: int
+    time_s: float
+    nit: int | None = None
+    nfev: int | None = None
+    history: FloatArray | None = None
+    message: str = ""
+    delay: int = 0
+    sensitivity: dict[str, float] | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def poorly_constrained(self) -> list[str]:
+        """Parameters whose 10 % change moves the RMSE by less than 1 %."""
+        if not self.sensitivity:
+            return []
+        return [k for k, v in self.sensitivity.items() if v < 0.01]
+
+    def summary(self) -> dict[str, Any]:
+        """The fit's figures as plain data (JSON-ready)."""
+        out: dict[str, Any] = {
+            "method": self.method, "rmse": self.rmse, "n_samples": self.n_samples,
+            "time_s": self.time_s, "nit": self.nit, "nfev": self.nfev, "delay": self.delay,
+            "message": self.message,
+        }
+        if self.sensitivity is not None:
+            out["sensitivity"] = dict(self.sensitivity)
+            out["poorly_constrained"] = self.poorly_constrained
+        for k, v in self.info.items():
+            if isinstance(v, (int, float, str, bool)) or v is None:
+                out[k] = v
+        if "candidates" in self.info:
+            out["candidates"] = self.info["candidates"]
+        if "holdout" in self.info:
+            out["holdout"] = self.info["holdout"]
+        out["warnings"] = list(self.warnings)
+        return out
+
+    def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The fitted model's output for ``u`` in µm (the unit of ``y``)."""
+        return self.model.predict(u, dt)
+
+
+
+def paired_signals(u: Any, y: Any, delay: int) -> tuple[FloatArray, FloatArray]:
+    """``u`` and ``y`` checked and aligned for a sensor delay: ``u[k]`` pairs with ``y[k + delay]``."""
+    us = as_signal("u", u, min_length=2)
+    ys = as_signal("y", y, min_length=2)
+    if us.size != ys.size:
+        raise ValueError(f"u and y must have the same length, got {us.size} and {ys.size}")
+    if isinstance(delay, bool) or not isinstance(delay, (int, np.integer)) or delay < 0:
+        raise ValueError(f"delay must be an integer number of samples >= 0, got {delay!r}")
+    if delay:
+        if delay >= us.size - 1:
+            raise ValueError(f"delay={delay} leaves fewer than 2 samples of {us.size}")
+        us, ys = us[: us.size - delay], ys[delay:]
+    if np.ptp(us) == 0:
+        raise ValueError("u is constant: a constant input cannot identify a hysteresis model")
+    return np.ascontiguousarray(us), np.ascontiguousarray(ys)
+
+
+
+def simulate_fit(fit: FitResult, u: Any, dt: float | None = None) -> FloatArray:
+    """The fitted model's output for ``u`` in the units the fit was made in (µm)."""
+    return fit.predict(u, dt)

@@ -1,0 +1,535 @@
+"""Model selection on held-out data: :func:`fit_model` (beyond the paper).
+
+Every candidate - a kind (P-I, asymmetric P-I, Preisach, rate-dependent wrappers, Bouc-Wen) and a
+structure (operators or grid levels, output-map knots, output lags, input lag, sensor delay) - is
+fitted on the earlier part of the training record and scored on what it never saw: the later
+part of the record (simulated from the record's start, so every model carries its memory into
+it), or the validation sets the user gives. The winner is refitted on the whole training record.
+
+The search is staged, each stage keeping the best so far (a more complex candidate must lower
+the hold-out error by :data:`MIN_GAIN` to replace a simpler one):
+
+1. P-I thresholds (over half the input's span, or by the paper's eq. 4), then the sensor delay
+   (coarse, then fine) jointly with the input lag (amplifier and stack), with a plain P-I model;
+2. (after the lags) the delay and the input lag again around the best, since lags take part of
+   what looked like delay;
+3. output lags: none, the rate-dependence band, rate and creep (then stage 2);
+4. the static kind and its size: P-I operators, asymmetric P-I output-map knots, Preisach levels;
+5. Bouc-Wen (PSO) when the kind allows it and a sample period is known.
+
+Every range follows from the data, nothing from any particular stage (:func:`search_ranges`):
+the excitation's frequency band ``f_lo .. f_hi`` (between 1 % and 98 % of the input's power) and
+the record's length and sample rate. Delays up to 5 % of the fastest period (at least 5
+samples); input lags from two samples to ``0.2 / (2 pi f_hi)``, searched jointly with the delay
+(the two trade against each other); output lags two per decade from ``0.016 / f_hi`` (or two
+samples) to half the fitting part of the record (creep; a lag longer than the record can tell from a constant
+overfits: it drifts on new data, and the hold-out shows it), tried as two sets:
+rate dependence (``tau <= 1 / (2 pi f_lo)``) and rate dependence with creep (all).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .._validation import FloatArray, as_scalar
+from ..models.base import kind_class
+from .linear import Structure, fit_prepared, fit_structure, mean_slope, prepare
+from .result import FitResult, paired_signals
+
+#: Relative drop of the hold-out error a more complex candidate must bring to be preferred.
+MIN_GAIN = 0.02
+#: Fraction of the training record held out when no validation data are given.
+HOLDOUT = 0.3
+
+_LINEAR_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach")
+
+
+@dataclass(frozen=True)
+class SearchRanges:
+    """The data-derived ranges of the search (module docstring)."""
+
+    f_lo: float | None
+    f_hi: float | None
+    max_delay: int
+    input_taus: tuple[float, ...]
+    rate_taus: tuple[float, ...]
+    creep_taus: tuple[float, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"f_lo_hz": self.f_lo, "f_hi_hz": self.f_hi, "max_delay": self.max_delay,
+                "input_taus_s": list(self.input_taus), "rate_taus_s": list(self.rate_taus),
+                "creep_taus_s": list(self.creep_taus)}
+
+
+def excitation_band(u: FloatArray, dt: float) -> tuple[float, float]:
+    """``(f_lo, f_hi)``: where 1 % and 98 % of the input's (mean-removed) power has accumulated."""
+    x = np.asarray(u, dtype=np.float64) - float(np.mean(u))
+    spec = np.abs(np.fft.rfft(x)) ** 2
+    freqs = np.fft.rfftfreq(x.size, dt)
+    spec[0] = 0.0
+    total = float(spec.sum())
+    if total <= 0:
+        raise ValueError("u is constant: a constant input cannot identify a hysteresis model")
+    cum = np.cumsum(spec) / total
+    f_lo = float(freqs[int(np.searchsorted(cum, 0.01))])
+    f_hi = float(freqs[min(int(np.searchsorted(cum, 0.98)), freqs.size - 1)])
+    f_min = 1.0 / (x.size * dt)
+    return max(f_lo, f_min), max(f_hi, f_lo, f_min)
+
+
+def _geometric(lo: float, hi: float, ratio: float) -> tuple[float, ...]:
+    if not (lo > 0 and hi >= lo):
+        return ()
+    k = int(math.floor(math.log(hi / lo) / math.log(ratio) + 1e-9))
+    return tuple(float(lo * ratio**i) for i in range(k + 1))
+
+
+def search_ranges(u: FloatArray, dt: float | None, n_fit: int) -> SearchRanges:
+    """The search's ranges from the data alone (module docstring)."""
+    if dt is None:
+        return SearchRanges(None, None, max(5, min(n_fit // 50, 50)), (), (), ())
+    f_lo, f_hi = excitation_band(u[:n_fit], dt)
+    t_fit = n_fit * dt
+    max_delay = int(max(5, min(round(0.05 / (f_hi * dt)), n_fit // 20)))
+    itau_hi = min(0.2 / (2 * math.pi * f_hi), t_fit / 20)
+    input_taus = _geometric(2 * dt, itau_hi, 2.0)
+    tau_lo = max(0.016 / f_hi, 2 * dt)
+    tau_hi = t_fit / 2
+    taus = _geometric(tau_lo, tau_hi, math.sqrt(10.0))
+    # rate dependence: lags within the excitation's band (tau <= 1 / (2 pi f_lo)); creep: longer ones
+    rate = tuple(t for t in taus if t <= 1.0 / (2 * math.pi * f_lo)) or taus[:1]
+    return SearchRanges(f_lo, f_hi, max_delay, input_taus, rate, taus)
+
+
+@dataclass
+class _Candidate:
+    structure: Any  # Structure, or ("bouc-wen", delay)
+    label: str
+    kind: str
+    score: float
+    fit_rmse: float
+    n_parameters: int
+    time_s: float
+    per_set: list[float] = field(default_factory=list)
+
+
+class _Scorer:
+    """Fits a structure on the fitting rows and scores it on the hold-out or validation sets."""
+
+    def __init__(self, u: FloatArray, y: FloatArray, dt: float | None, n_fit: int,
+                 validation: list[tuple[FloatArray, FloatArray, int]], margin: float | None):
+        self.u, self.y, self.dt, self.n_fit = u, y, dt, n_fit
+        self.validation = validation
+        self.margin = margin
+        self.tried: list[_Candidate] = []
+        self._prep: dict[Any, Any] = {}
+        self._done: dict[Structure, _Candidate] = {}
+
+    def score_model(self, model: Any, delay: int, pred_train: FloatArray | None) -> tuple[float, list[float]]:
+        if not self.validation:
+            assert pred_train is not None
+            e = self.y[self.n_fit:] - pred_train[self.n_fit:]
+            r = float(np.sqrt(np.mean(e**2)))
+            return r, [r]
+        out = []
+        for uv, yv, first in self.validation:
+            p = model.predict(uv, self.dt)
+            resid = (yv[delay:] - p[: p.size - delay] if delay else yv - p)[max(first - delay, 0):]
+            out.append(float(np.sqrt(np.mean(resid**2))))
+        return float(np.mean(out)), out
+
+    def linear(self, st: Structure) -> _Candidate:
+        done = self._done.get(st)
+        if done is not None:
+            return done
+        key = replace(st, delay=0)
+        pre = self._prep.get(key)
+        if pre is None:
+            pre = prepare(self.u, self.dt, st, u_ref=self.u[: self.n_fit])
+            self._prep[key] = pre
+        t0 = time.perf_counter()
+        d, n = st.delay, self.u.size
+        if self.validation:
+            model, info, _ = fit_prepared(pre, self.y[d:self.n_fit], self.n_fit - d, self.dt, margin=self.margin,
+                                          predict=(0, 1))
+            score, per = self.score_model(model, d, None)
+            fit_rmse = float("nan")
+        else:
+            # prediction of sample k is row k - d: rows [n_fit - d, n - d) score the held-out samples
+            model, info, pred = fit_prepared(pre, self.y[d:self.n_fit], self.n_fit - d, self.dt, margin=self.margin,
+                                             predict=(self.n_fit - d, n - d))
+            e = self.y[self.n_fit:] - pred
+            score = float(np.sqrt(np.mean(e**2)))
+            per = [score]
+            fit_rmse = float("nan")
+        c = _Candidate(st, st.label(), st.kind, score, fit_rmse, int(info["n_parameters"]),
+                       time.perf_counter() - t0, per)
+        self.tried.append(c)
+        self._done[st] = c
+        return c
+
+
+def _best(cands: Sequence[_Candidate]) -> _Candidate:
+    return min(cands, key=lambda c: c.score)
+
+
+def _prefer(incumbent: _Candidate, challenger: _Candidate) -> _Candidate:
+    """The challenger (more complex) wins only by a margin (module docstring)."""
+    return challenger if challenger.score < (1.0 - MIN_GAIN) * incumbent.score else incumbent
+
+
+def _delay_search(sc: _Scorer, base: Structure, lo: int, hi: int) -> _Candidate:
+    """The delay in ``lo..hi`` with the lowest hold-out error: a coarse, roughly geometric grid
+    (short delays are the common ones), then halving the gap around the best point."""
+    grid = sorted({lo, hi, *[d for d in (1, 2, 3, 4, 6, 8, 11, 16, 22, 32, 45, 64, 90, 128, 181, 256)
+                             if lo < d < hi]})
+    cands = {d: sc.linear(replace(base, delay=d)) for d in grid}
+    while True:
+        order = sorted(cands)
+        d0 = min(cands, key=lambda d: cands[d].score)
+        i = order.index(d0)
+        gaps = [(order[i - 1], d0)] if i > 0 else []
+        gaps += [(d0, order[i + 1])] if i + 1 < len(order) else []
+        new = [(a + b) // 2 for a, b in gaps if b - a > 1]
+        if not new:
+            return cands[d0]
+        for d in new:
+            cands[d] = sc.linear(replace(base, delay=d))
+
+
+def fit_model(
+    u: Any, y: Any = None, dt: float | None = None, kind: str = "auto", *,
+    validation: Sequence[Any] | None = None, holdout: float = HOLDOUT, delay: int | str = "auto",
+    n: int | None = None, kinds: Sequence[str] | None = None, margin: float | None = None,
+    taus: Sequence[float] | None = None, input_taus: Sequence[float] | None = None,
+    max_delay: int | None = None, statics: Sequence[str] = ("pi", "preisach"),
+    seed: Any = 0, bouc_wen_options: dict[str, Any] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> FitResult:
+    """Identify the model that predicts held-out data best (module docstring).
+
+    Parameters
+    ----------
+    u, y : array_like or Dataset
+        Input (V) and output (µm) of the training record, starting at rest; or one
+        :class:`~piezohyst.data.Dataset` as ``u`` (its ``dt`` is used).
+    dt : float, optional
+        Sample period, s. Without it no rate-dependent kind is tried.
+    kind : str
+        ``"auto"`` (every kind), or one kind name or alias: ``"pi"``, ``"rate-dependent"``,
+        ``"asymmetric-pi"``, ``"preisach"``, ``"bouc-wen"``; the structure is still chosen on
+        held-out data.
+    validation : sequence, optional
+        Held-out sets to choose on instead of the later part of the training record: each a
+        Dataset, a ``(u, y)`` pair, or ``(u, y, first)`` with ``first`` the first sample scored
+        (the set is simulated from its start). The score is the mean of their RMSEs.
+    holdout : float
+        Fraction of the training record held out when ``validation`` is not given.
+    delay : int or "auto"
+        Samples by which y lags u, or searched.
+    n : int, optional
+        Fix the P-I operators / Preisach levels instead of choosing them.
+    kinds : sequence of str, optional
+        Restrict ``"auto"`` to these kinds (``commission`` uses the linear ones).
+    margin : float, optional
+        Smallest branch slope (see :mod:`piezohyst.identify.linear`).
+    taus, input_taus, max_delay : optional
+        Replace the data-derived output lags (one set, used as given), input-lag candidates and
+        largest delay of the search.
+    statics : sequence of {"pi", "preisach"}
+        The static parts the linear kinds may use.
+    seed, bouc_wen_options
+        For the Bouc-Wen candidate (PSO).
+    progress : callable, optional
+        Called with a short description before each stage.
+
+    Returns
+    -------
+    FitResult
+        The chosen model refitted on the whole training record; ``info["candidates"]`` lists
+        every candidate with its hold-out error (µm and % of span), ``info["holdout"]`` the
+        winner's, ``info["search"]`` the ranges; ``warnings`` what deserves attention.
+    """
+    from ..data import Dataset
+
+    t0 = time.perf_counter()
+    if isinstance(u, Dataset):
+        if y is not None:
+            raise TypeError("give either a Dataset or u and y, not both")
+        dt = u.dt if dt is None else dt
+        u, y = u.u, u.y
+    if y is None:
+        raise TypeError("fit_model needs the output y (or a Dataset)")
+    us, ys = paired_signals(u, y, 0)
+    if np.corrcoef(us, ys)[0, 1] < 0:
+        raise ValueError("the output falls as the input rises (negative correlation): negate y first")
+    dt = as_scalar("dt", dt, positive=True) if dt is not None else None
+    say = progress or (lambda s: None)
+    allowed = _allowed_kinds(kind, kinds, dt)
+    kind_name = allowed[0] if kind != "auto" else None
+    vsets = [_as_validation(v, i) for i, v in enumerate(validation or [])]
+    n_total = us.size
+    n_fit = n_total if vsets else int(round((1.0 - holdout) * n_total))
+    if not vsets and not (0.05 <= holdout <= 0.5):
+        raise ValueError(f"holdout must be between 0.05 and 0.5 of the record, got {holdout}")
+    if n_fit < 50 or (not vsets and n_total - n_fit < 20):
+        raise ValueError(f"{n_total} samples are too few to fit on one part and choose on another")
+    if margin is None:
+        margin = 0.02 * mean_slope(us[:n_fit], ys[:n_fit])
+    ranges = search_ranges(us, dt, n_fit)
+    if taus is not None or input_taus is not None or max_delay is not None:
+        ranges = replace(
+            ranges, max_delay=ranges.max_delay if max_delay is None else int(max_delay),
+            input_taus=ranges.input_taus if input_taus is None else tuple(float(t) for t in input_taus if t > 0),
+            rate_taus=ranges.rate_taus if taus is None else tuple(float(t) for t in taus),
+            creep_taus=ranges.creep_taus if taus is None else ())
+    bad = set(statics) - {"pi", "preisach"}
+    if bad or not statics:
+        raise ValueError(f"statics must be a non-empty selection of 'pi' and 'preisach', got {list(statics)}")
+    sc = _Scorer(us, ys, dt, n_fit, vsets, margin)
+    linear = [k for k in allowed if k in _LINEAR_KINDS]
+    best: _Candidate | None = None
+    if linear:
+        pi_static = "pi" in statics and any(k in ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi")
+                                            for k in linear)
+        base = Structure("pi" if pi_static else "preisach", n or (20 if pi_static else 12))
+        # P-I thresholds over half the input's span (the operators that move in steady loops) or by
+        # the paper's eq. (4) (the initial loading too): the whole search runs for each, since which
+        # one wins can change once lags take part of the error
+        rules = ("span", "eq4") if pi_static else ("span",)
+        ends = [_linear_search(sc, replace(base, thresholds=r), ranges, delay, linear, n, n_fit, kind_name,
+                               statics, dt, say) for r in rules]
+        best = min(ends, key=lambda c: c.score)
+    if "bouc-wen" in allowed and dt is not None:
+        say("Bouc-Wen (PSO)")
+        bw = _bouc_wen_candidate(sc, best.structure.delay if best else (0 if delay == "auto" else int(delay)),
+                                 seed, bouc_wen_options)
+        best = bw if best is None else _prefer(best, bw) if bw.score < best.score else best
+    assert best is not None
+    # refit the winner on the whole training record
+    say("refit on the whole record")
+    if isinstance(best.structure, Structure):
+        final, _ = fit_structure(us, ys, dt, best.structure, margin=margin)
+    else:
+        final = _fit_bouc_wen(us, ys, dt, best.structure[1], seed, bouc_wen_options)  # type: ignore[arg-type]
+    span = float(np.ptp(ys))
+    final.info["candidates"] = [
+        {"label": c.label, "kind": c.kind, "holdout_rmse": c.score,
+         "holdout_percent_of_span": 100.0 * c.score / span if span > 0 else None,
+         "fit_rmse": c.fit_rmse, "n_parameters": c.n_parameters, "per_set_rmse": c.per_set,
+         "chosen": c is best} for c in sc.tried]
+    final.info["holdout"] = {"rmse": best.score, "percent_of_span": 100.0 * best.score / span if span > 0 else None,
+                             "on": "validation data" if vsets else f"the last {100 * (1 - n_fit / n_total):.0f} % "
+                             "of the training record", "per_set_rmse": best.per_set}
+    final.info["search"] = ranges.to_dict()
+    final.info["chosen"] = best.label
+    final.method = f"selection on held-out data: {best.label}"
+    final.warnings = _quality_warnings(final, us, ys, dt, best, span, vsets, n_fit, sc) + final.warnings
+    final.time_s = time.perf_counter() - t0
+    return final
+
+
+def _delays_near(d0: int, max_delay: int) -> list[int]:
+    """Delays around ``d0``: its neighbours and a few steps either side (log-spaced)."""
+    out = {d0}
+    for k in (1, 2, 4):
+        if k <= max(2, max_delay // 8):
+            out |= {max(d0 - k, 0), min(d0 + k, max_delay)}
+    return sorted(out)
+
+
+def _linear_search(sc: _Scorer, base: Structure, ranges: SearchRanges, delay: Any, linear: list[str],
+                   n: int | None, n_fit: int, kind_name: str | None, statics: Sequence[str],
+                   dt: float | None, say: Callable[[str], None]) -> _Candidate:
+    """Stages 1-4 of the module docstring from the static part ``base``."""
+    rule = "" if base.static != "pi" else f" ({base.thresholds} thresholds)"
+    rate_ok = dt is not None and any(k in ("rate-dependent", "asymmetric-pi") for k in linear)
+    itaus = (0.0, *ranges.input_taus) if rate_ok else (0.0,)
+    say("sensor delay and input lag" + rule)
+    if delay == "auto":
+        # delay and input lag trade against each other: search them jointly. An input lag of tau
+        # stands for about tau / dt of the delay found without one, so each lag's delays are
+        # searched around what is left of that delay.
+        first = _delay_search(sc, base, 0, ranges.max_delay)
+        per_tau = [first]
+        for it in itaus[1:]:
+            left = max(first.structure.delay - int(round(it / dt)), 0) if dt else first.structure.delay
+            per_tau.append(min((sc.linear(replace(base, input_tau=it, delay=d))
+                                for d in _delays_near(left, ranges.max_delay)), key=lambda c: c.score))
+    else:
+        per_tau = [sc.linear(replace(base, input_tau=it, delay=int(delay))) for it in itaus]
+    best = per_tau[0]
+    for c in per_tau[1:]:
+        best = _prefer(best, c)
+    if rate_ok:
+        say("output lags" + rule)
+        st0 = best.structure
+        lagged = [sc.linear(replace(st0, taus=taus)) for taus in (ranges.rate_taus, ranges.creep_taus)
+                  if taus and taus != st0.taus]
+        if kind_name == "rate-dependent" and lagged and not st0.rate_dependent:
+            best = _best(lagged)  # asked for: the best lagged structure, not the plain one
+        for c in lagged:
+            best = _prefer(best, c)
+        if best.structure.rate_dependent and len(itaus) > 1:
+            # the lags take part of what looked like delay and input lag: align again with them
+            say("sensor delay and input lag, with the lags" + rule)
+            st0 = best.structure
+            i0 = itaus.index(st0.input_tau) if st0.input_tau in itaus else 0
+            near_taus = {itaus[0], *itaus[max(i0 - 1, 0):i0 + 2]}
+            ds = _delays_near(st0.delay, ranges.max_delay) if delay == "auto" else [st0.delay]
+            for it in sorted(near_taus):
+                for d in ds:
+                    c = sc.linear(replace(st0, input_tau=it, delay=d))
+                    best = c if c.score < best.score else best
+    say("model kind and size" + rule)
+    return _kind_stage(sc, best, linear, n, n_fit, kind_name, statics)
+
+
+def _kind_stage(sc: _Scorer, best: _Candidate, linear: list[str], n: int | None, n_fit: int,
+                force: str | None, statics: Sequence[str]) -> _Candidate:
+    """Stage 4: the static kind and its size (smaller first; larger ones must win by MIN_GAIN)."""
+    st0 = best.structure
+    inc: _Candidate | None = None
+    if st0.static == "pi":
+        sizes = [n] if n else [s for s in (10, 20, 40) if n_fit >= 25 * s] or [st0.size]
+        for s in sorted(sizes):
+            c = best if s == st0.size else sc.linear(replace(st0, size=s))
+            inc = c if inc is None else _prefer(inc, c)
+        assert inc is not None
+        if "asymmetric-pi" in linear:
+            maps = [sc.linear(replace(inc.structure, map_knots=k)) for k in (2, 4, 8)
+                    if n_fit >= 50 * (inc.structure.size + k)]
+            if force == "asymmetric-pi" and maps:
+                inc = _best(maps)
+            for c in maps:
+                inc = _prefer(inc, c)
+    want_plain = "preisach" in linear and "preisach" in statics
+    want_rate = "rate-dependent" in linear and st0.rate_dependent and "preisach" in statics
+    if want_plain or want_rate:
+        levels = [n] if (n and st0.static == "preisach") else [s for s in (8, 12, 16) if n_fit >= 10 * s * (s + 1) // 2]
+        for s in levels:
+            taus, itau = (st0.taus, st0.input_tau) if want_rate else ((), 0.0)
+            c = sc.linear(Structure("preisach", s, 0, taus, itau, st0.delay))
+            inc = c if inc is None else (_prefer(inc, c) if inc.structure.static == "pi" else
+                                         (c if c.score < (1.0 - MIN_GAIN) * inc.score else inc))
+    assert inc is not None
+    return inc
+
+
+def _fit_bouc_wen(u: FloatArray, y: FloatArray, dt: float, d: int, seed: Any,
+                  options: dict[str, Any] | None) -> FitResult:
+    from .bouc_wen import fit_bouc_wen
+
+    return fit_bouc_wen(u, y, dt, seed=seed, delay=d, **(options or {}))
+
+
+def _bouc_wen_candidate(sc: _Scorer, d: int, seed: Any, options: dict[str, Any] | None) -> _Candidate:
+    t0 = time.perf_counter()
+    fit = _fit_bouc_wen(sc.u[: sc.n_fit], sc.y[: sc.n_fit], sc.dt, d, seed, options)  # type: ignore[arg-type]
+    pred_u = fit.model.predict(sc.u, sc.dt)
+    pred = np.concatenate([np.full(d, pred_u[0]), pred_u[: pred_u.size - d]]) if d else pred_u
+    score, per = sc.score_model(fit.model, d, pred)
+    c = _Candidate(("bouc-wen", d), f"Bouc-Wen (PSO + refinement); delay {d}", "bouc-wen", score, fit.rmse, 7,
+                   time.perf_counter() - t0, per)
+    sc.tried.append(c)
+    return c
+
+
+def _allowed_kinds(kind: str, kinds: Sequence[str] | None, dt: float | None) -> list[str]:
+    if kind == "auto":
+        allowed = list(kinds) if kinds is not None else [*_LINEAR_KINDS, "bouc-wen"]
+        allowed = [kind_class(k).kind for k in allowed]  # type: ignore[attr-defined]
+    else:
+        allowed = [kind_class(kind).kind]  # type: ignore[attr-defined]
+    if dt is None:
+        if any(k in ("rate-dependent", "bouc-wen") for k in allowed) and kind != "auto":
+            raise ValueError(f"a {allowed[0]} model has dynamics: give the sample period (dt= in Python, "
+                             f"--fs or a time column at the command line)")
+        allowed = [k for k in allowed if k not in ("rate-dependent", "bouc-wen")]
+    if not allowed:
+        raise ValueError("no model kind to fit")
+    return allowed
+
+
+def _as_validation(v: Any, i: int) -> tuple[FloatArray, FloatArray, int]:
+    from ..data import Dataset
+
+    if isinstance(v, Dataset):
+        return v.u, v.y, 0
+    if isinstance(v, (tuple, list)) and len(v) in (2, 3):
+        uu, yy = paired_signals(v[0], v[1], 0)
+        first = int(v[2]) if len(v) == 3 else 0
+        if not 0 <= first < uu.size - 1:
+            raise ValueError(f"validation set {i}: the first scored sample {first} is outside its {uu.size} samples")
+        return uu, yy, first
+    raise TypeError(f"validation set {i} must be a Dataset or a (u, y[, first]) tuple")
+
+
+def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | None, best: _Candidate,
+                      span: float, vsets: list[Any], n_fit: int, sc: _Scorer) -> list[str]:
+    """Warnings about the chosen model (module docstring of :mod:`piezohyst.identify`)."""
+    out = []
+    pct = 100.0 * best.score / span if span > 0 else float("nan")
+    if pct > 5.0:
+        out.append(f"the hold-out error is {pct:.1f} % of the output's span: the model predicts new data "
+                   f"poorly; a compensator built from it needs feedback")
+    d = fit.delay
+    pred = fit.model.predict(u, dt)
+    resid = y[d:] - pred[: pred.size - d] if d else y - pred
+    uu = u[: u.size - d] if d else u
+    du = np.diff(uu)
+    rr = resid[1:]
+    up, down = du > 0, du < 0
+    if up.sum() > 20 and down.sum() > 20 and span > 0:
+        diff = float(rr[up].mean() - rr[down].mean())
+        sd = float(np.std(rr))
+        if abs(diff) > max(0.01 * span, 0.5 * sd):
+            out.append(f"the residual depends on the direction of motion (mean {diff:+.3g} between rising and "
+                       f"falling input): the model misses part of the loop's shape")
+    falls, reversals = _falling_after_reversal(uu, y[d:] if d else y, pred[: pred.size - d] if d else pred, span)
+    if falls >= max(3, 0.1 * reversals):
+        out.append(f"after {falls} input reversals the output keeps moving the old way where the model (with its "
+                   f"delay and lags) turns: no monotone model represents that; the compensator cannot cancel it, "
+                   f"feedback must")
+    return out
+
+
+def _falling_after_reversal(u: FloatArray, y: FloatArray, model: FloatArray, span: float) -> tuple[int, int]:
+    """Reversals of u after which the data move against u by more than 1 % of the span (and the
+    noise) while the model, delay and lags included, moves with it; and the number of reversals."""
+    if span <= 0 or u.size < 10:
+        return 0, 0
+    du = np.diff(u)
+    sgn = np.sign(du)
+    nz = np.flatnonzero(sgn)
+    if nz.size < 3:
+        return 0, 0
+    s = sgn[nz]
+    rev = nz[1:][s[1:] != s[:-1]]
+    noise = float(np.median(np.abs(np.diff(y, 2)))) * 3.0
+    travel = 0.02 * float(np.ptp(u))
+    count = 0
+    for k in rev:
+        direction = np.sign(du[k])
+        j = k + 1
+        while j < u.size and abs(u[j] - u[k]) < travel:
+            j += 1
+        if j >= u.size:
+            break
+        if (y[j] - y[k]) * direction < -max(0.01 * span, noise) and (model[j] - model[k]) * direction > 0:
+            count += 1
+    return count, int(rev.size)
+
+
+def fit_summary_table(fit: FitResult) -> list[dict[str, Any]]:
+    """The candidates of a :func:`fit_model` result, best first."""
+    return sorted(fit.info.get("candidates", []), key=lambda c: c["holdout_rmse"])
+
+
+__all__ = ["HOLDOUT", "MIN_GAIN", "SearchRanges", "excitation_band", "fit_model", "fit_summary_table",
+           "search_ranges"]

@@ -1,0 +1,238 @@
+"""One protocol for every hysteresis model kind, and the registry of kinds by name.
+
+Every kind (Prandtl-Ishlinskii, asymmetric P-I, Preisach, rate-dependent wrappers, Bouc-Wen)
+implements :class:`HysteresisModel`:
+
+* ``simulate(u, dt=None)`` - the output for an input signal, in the kind's ``output_unit``
+  (``dt`` where the kind has dynamics; rate-independent kinds accept and ignore it);
+* ``predict(u, dt=None)`` - the same in micrometres, the unit of every data set;
+* ``stepper(dt=None)`` - a streaming evaluator, ``reset()`` / ``step(u_k)``, on the kernel that
+  ``simulate`` runs, so the two give the same numbers;
+* ``compensator(dt=None, *, u_range=None, max_slew=None)`` - the feedforward that inverts the
+  model: desired displacement (µm) in, command (V) out (:class:`Compensator`);
+* ``to_dict()`` / ``from_dict(params)`` - plain JSON data, so model files never hold code;
+* ``is_invertible`` and ``dynamic`` (True when the model needs ``dt``).
+
+The registry maps a kind's name (and aliases, e.g. ``"pi"``) to its class. Model files, the
+CLI, ``compensate``, ``track``, ``commission`` and the C export all go through it: a new kind is
+one module that registers itself with :func:`register_kind`, imported once in
+``piezohyst/models/__init__.py``, and ``tests/test_model_kinds.py`` checks every duty of it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, ClassVar, Protocol, TypeVar, runtime_checkable
+
+import numpy as np
+
+from .._validation import FloatArray, as_scalar, as_signal
+
+T = TypeVar("T")
+
+
+@runtime_checkable
+class Stepper(Protocol):
+    """Streaming evaluation: ``reset()``, then ``step(x)`` once per sample."""
+
+    def reset(self) -> None: ...
+
+    def step(self, x: float) -> float: ...  # noqa: E704
+
+
+@runtime_checkable
+class HysteresisModel(Protocol):
+    """What every model kind offers (see the module docstring)."""
+
+    kind: ClassVar[str]
+    output_unit: ClassVar[str]
+
+    @property
+    def is_invertible(self) -> bool: ...  # noqa: E704
+
+    @property
+    def dynamic(self) -> bool: ...  # noqa: E704
+
+    def simulate(self, u: Any, dt: float | None = None) -> FloatArray: ...  # noqa: E704
+
+    def predict(self, u: Any, dt: float | None = None) -> FloatArray: ...  # noqa: E704
+
+    def stepper(self, dt: float | None = None) -> Stepper: ...  # noqa: E704
+
+    def compensator(self, dt: float | None = None, *, u_range: Any = None,
+                    max_slew: float | None = None) -> "Compensator": ...  # noqa: E704
+
+    def to_dict(self) -> dict[str, Any]: ...  # noqa: E704
+
+    @classmethod
+    def from_dict(cls, params: dict[str, Any]) -> Any: ...  # noqa: E704
+
+
+# -- the registry ----------------------------------------------------------------------------------
+_KINDS: dict[str, type] = {}
+_ALIASES: dict[str, str] = {}
+
+
+def register_kind(name: str, *aliases: str) -> Callable[[type[T]], type[T]]:
+    """Class decorator: register a model kind under ``name`` (and ``aliases``)."""
+
+    def deco(cls: type[T]) -> type[T]:
+        if name in _KINDS and _KINDS[name] is not cls:
+            raise ValueError(f"model kind {name!r} is registered twice")
+        cls.kind = name  # type: ignore[attr-defined]
+        _KINDS[name] = cls
+        for a in (name, *aliases):
+            _ALIASES[a] = name
+        return cls
+
+    return deco
+
+
+def kinds() -> list[str]:
+    """The registered kind names."""
+    return list(_KINDS)
+
+
+def kind_names_and_aliases() -> list[str]:
+    """Every name a user may give for a kind (``--model`` accepts these)."""
+    return sorted(_ALIASES)
+
+
+def kind_class(name: str) -> type:
+    """The class registered as ``name`` (or an alias of it)."""
+    key = _ALIASES.get(str(name).strip().lower())
+    if key is None:
+        raise ValueError(f"unknown model kind {name!r}; the kinds are {kinds()} "
+                         f"(aliases: {sorted(set(_ALIASES) - set(_KINDS))})")
+    return _KINDS[key]
+
+
+def kind_of(model: Any) -> str:
+    """The registered kind name of ``model``."""
+    name = getattr(type(model), "kind", None)
+    if not isinstance(name, str) or _KINDS.get(name) is not type(model):
+        raise TypeError(f"{type(model).__name__} is not a registered model kind; the kinds are {kinds()}")
+    return name
+
+
+def model_from_dict(kind: str, params: Any) -> Any:
+    """Rebuild a model of ``kind`` from its ``to_dict()`` parameters."""
+    if not isinstance(params, dict):
+        raise ValueError(f"the parameters of a {kind!r} model must be an object, got {type(params).__name__}")
+    return kind_class(kind).from_dict(params)  # type: ignore[attr-defined]
+
+
+def nested_to_dict(model: Any) -> dict[str, Any]:
+    """``{"kind": ..., "parameters": ...}`` of a model held inside another (wrappers)."""
+    return {"kind": kind_of(model), "parameters": model.to_dict()}
+
+
+def nested_from_dict(doc: Any, what: str) -> Any:
+    if not isinstance(doc, dict) or "kind" not in doc or "parameters" not in doc:
+        raise ValueError(f"{what} must be an object with 'kind' and 'parameters'")
+    return model_from_dict(doc["kind"], doc["parameters"])
+
+
+# -- helpers for implementations -------------------------------------------------------------------
+def check_dt(dt: Any, own: float | None, kind: str) -> float | None:
+    """Validate ``dt`` against a model's own sample period (None: the model has none)."""
+    if dt is None:
+        return own
+    d = as_scalar("dt", dt, positive=True)
+    if own is not None and not math.isclose(d, own, rel_tol=1e-9):
+        raise ValueError(f"this {kind} model was identified at dt = {own:g} s; it cannot run at dt = {d:g} s")
+    return d
+
+
+def need_dt(dt: Any, kind: str) -> float:
+    if dt is None:
+        raise ValueError(f"a {kind} model has dynamics: give the sample period dt (s)")
+    return as_scalar("dt", dt, positive=True)
+
+
+def check_u_range(u_range: Any) -> tuple[float, float] | None:
+    """``(low, high)`` volts, finite and ordered, or None."""
+    if u_range is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in u_range)
+    except (TypeError, ValueError):
+        raise ValueError(f"u_range must be (low, high) in volts, got {u_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ValueError(f"u_range must be finite, got ({lo}, {hi})")
+    if not lo < hi:
+        raise ValueError(f"u_range must be (low, high) with low < high, got ({lo:g}, {hi:g})")
+    return lo, hi
+
+
+class Compensator:
+    """The feedforward that inverts a model: desired displacement (µm) in, command (V) out.
+
+    Subclasses implement ``_reset()``, ``_step(x_d) -> u`` (and may override ``_command`` with a
+    batch kernel that gives the same numbers). This base class validates the input and applies
+    the output limits *after* the inverse, identically in :meth:`step` and :meth:`command` (and
+    in the exported C code): the command is clipped to ``u_range`` and its change per sample is
+    limited to ``max_slew`` volts. The inverse's own state follows the unlimited command, so a
+    clipped stretch does not corrupt what comes after it.
+    """
+
+    def __init__(self, *, u_range: Any = None, max_slew: float | None = None):
+        self.u_range = check_u_range(u_range)
+        self.max_slew = as_scalar("max_slew", max_slew, positive=True) if max_slew is not None else None
+        self._u_last: float | None = None
+        self.limited = 0  # samples the limits changed since the last reset
+
+    # -- to implement -------------------------------------------------------------------------
+    def _reset(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _step(self, x_d: float) -> float:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _command(self, x_d: FloatArray) -> FloatArray:
+        return np.array([self._step(float(v)) for v in x_d])
+
+    # -- public -------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to the model's initial (de-energised) state."""
+        self._reset()
+        self._u_last = None
+        self.limited = 0
+
+    def _limit(self, u: float) -> float:
+        v = u
+        if self.max_slew is not None and self._u_last is not None:
+            v = min(max(v, self._u_last - self.max_slew), self._u_last + self.max_slew)
+        if self.u_range is not None:
+            v = min(max(v, self.u_range[0]), self.u_range[1])
+        if v != u:
+            self.limited += 1
+        self._u_last = v
+        return v
+
+    def step(self, x_d: float) -> float:
+        """The command (V) for the next desired displacement sample (µm)."""
+        x = float(x_d)
+        if not math.isfinite(x):
+            raise ValueError(f"the desired displacement must be finite, got {x_d!r}")
+        return self._limit(float(self._step(x)))
+
+    def command(self, x_d: Any) -> FloatArray:
+        """Commands (V) for a whole desired trajectory (µm), from the initial state.
+
+        The compensator is reset before and after, so it can be called at any time.
+        """
+        xs = as_signal("x_d", x_d)
+        self.reset()
+        raw = np.asarray(self._command(xs), dtype=np.float64)
+        if self.u_range is None and self.max_slew is None:
+            out = raw
+        else:
+            out = np.array([self._limit(float(v)) for v in raw])
+        limited = self.limited
+        self.reset()
+        self.limited = limited  # what the limits did to this command stays readable
+        return out
+
+    def settings(self) -> dict[str, Any]:
+        return {"u_range": list(self.u_range) if self.u_range else None, "max_slew": self.max_slew}

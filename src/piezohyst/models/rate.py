@@ -1,0 +1,291 @@
+"""Rate dependence and creep around a rate-independent hysteresis model (beyond the paper).
+
+    v(k)   = b v(k-1) + (1 - b) u(k),             b = exp(-dt / input_tau)   (amplifier + stack)
+    s_i(k) = a_i s_i(k-1) + (1 - a_i) v(k),       a_i = exp(-dt / tau_i)
+    y(k)   = S[v](k) + sum_i c_i s_i(k)
+
+``S`` is any rate-independent kind that can be inverted with an extra linear term (the
+Prandtl-Ishlinskii model of eq. (3), the Preisach model). The lags are the linear "creep
+operator" of Krejci and Kuhnen: time constants from a few samples to a fraction of the record
+describe what a rate-independent model cannot see, the widening of the loop with frequency and
+the slow creep after a change. The output is *linear in every parameter* of S, c and the offset,
+so the model is identified by constrained least squares with a global optimum
+(:func:`piezohyst.identify.fit_rate_dependent`).
+
+**The inverse, and why it cannot chatter.** With ``kappa = sum_i c_i (1 - a_i)`` the present
+input acts through ``S[v](k) + kappa v(k)``; the rest of the lag terms is known from the past.
+So the command for a desired ``x_d(k)`` is exact: solve ``S[v] + kappa v = x_d(k) - sum_i c_i a_i
+s_i(k-1)`` for v (for P-I: the analytic inverse, eqs. 12-15, of the P-I model with ``kappa``
+added to ``w_1``), then invert the input lag, ``u(k) = (v(k) - b v(k-1)) / (1 - b)``. Seen as a
+linear system around a branch of local slope K, the lags give
+``H(z) = K + sum_i c_i (1 - a_i) / (1 - a_i z^-1)``; each lag term has a positive real part and a
+magnitude of at most 1 on the unit circle, so ``K + sum_i min(c_i, 0) > 0`` makes ``Re H > 0``
+everywhere: H is minimum phase and its inverse is stable. The identification enforces exactly
+that, with K the smallest slope of any branch of S (``S.min_slope``; for P-I the smallest
+partial sum of the weights), which is the condition :attr:`RateDependent.inverse_is_stable`
+reports. A lag entered with the previous sample's state (as earlier versions did) gives
+``a_i - c_i (1 - a_i) / K`` as the pole of the inverse, outside the unit circle as soon as a fast
+lag's weight exceeds the slope after a reversal: the command then oscillates at the Nyquist
+frequency.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .._numba import njit
+from .._validation import FloatArray, as_scalar, as_signal, frozen
+from .base import Compensator, check_dt, kind_of, nested_from_dict, nested_to_dict, register_kind
+
+
+@njit
+def _lag_kernel(x: FloatArray, a: float) -> FloatArray:  # pragma: no cover - compiled
+    out = np.empty(x.shape[0])
+    s = 0.0
+    for k in range(x.shape[0]):
+        s = (1.0 - a) * x[k] + a * s
+        out[k] = s
+    return out
+
+
+def first_order_lag(x: FloatArray, a: float) -> FloatArray:
+    """``s(k) = a s(k-1) + (1 - a) x(k)`` from rest (``s(-1) = 0``), the arithmetic of the steppers."""
+    xs = np.ascontiguousarray(x, dtype=np.float64)
+    if a == 0.0:
+        return np.array(xs)
+    return _lag_kernel(xs, float(a))
+
+
+def lag_factor(tau: float, dt: float) -> float:
+    """``exp(-dt / tau)``; 0 for ``tau == 0`` (no lag)."""
+    return math.exp(-dt / tau) if tau > 0 else 0.0
+
+
+@register_kind("rate-dependent", "rate-dependent-pi", "rate-pi", "rate")
+@dataclass(frozen=True, eq=False)
+class RateDependent:
+    """A rate-independent model ``S`` plus an input lag and output lags (module docstring).
+
+    Parameters
+    ----------
+    static : PrandtlIshlinskii or Preisach
+        The rate-independent part ``S`` (its offset is the model's offset).
+    taus : array_like
+        Output-lag time constants, s (may be empty).
+    lag_weights : array_like
+        ``c_i``, output units per input unit.
+    dt : float
+        Sample period the model runs at, s.
+    input_tau : float
+        Time constant of the input lag, s (0: none).
+    """
+
+    kind: ClassVar[str]
+    output_unit: ClassVar[str] = "um"
+    dynamic: ClassVar[bool] = True
+
+    static: Any
+    taus: FloatArray
+    lag_weights: FloatArray
+    dt: float
+    input_tau: float = 0.0
+    _a: FloatArray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if getattr(self.static, "dynamic", True) or not hasattr(self.static, "slope_inverse"):
+            raise TypeError(f"static must be a rate-independent kind that can be inverted with a slope "
+                            f"(P-I or Preisach), got {type(self.static).__name__}")
+        taus = as_signal("taus", self.taus, min_length=0)
+        if np.any(taus <= 0):
+            raise ValueError(f"taus must all be > 0, got {taus}")
+        c = as_signal("lag_weights", self.lag_weights, min_length=0)
+        if c.size != taus.size:
+            raise ValueError(f"lag_weights must have one entry per tau: {c.size} for {taus.size}")
+        dt = as_scalar("dt", self.dt, positive=True)
+        object.__setattr__(self, "taus", frozen(taus))
+        object.__setattr__(self, "lag_weights", frozen(c))
+        object.__setattr__(self, "dt", dt)
+        object.__setattr__(self, "input_tau", as_scalar("input_tau", self.input_tau, nonnegative=True))
+        object.__setattr__(self, "_a", frozen(np.exp(-dt / taus)))
+
+    # -- figures ---------------------------------------------------------------------------------
+    @property
+    def pi(self) -> Any:
+        """The rate-independent part (the name earlier versions used, when it was always P-I)."""
+        return self.static
+
+    @property
+    def input_lag_factor(self) -> float:
+        """``b = exp(-dt / input_tau)`` (0 without an input lag)."""
+        return lag_factor(self.input_tau, self.dt)
+
+    @property
+    def lag_factors(self) -> FloatArray:
+        """``a_i = exp(-dt / tau_i)``."""
+        return self._a
+
+    @property
+    def instantaneous_lag_gain(self) -> float:
+        """``kappa = sum_i c_i (1 - a_i)``: what the lags add to the slope within one sample."""
+        return float(np.sum(self.lag_weights * (1.0 - self._a)))
+
+    @property
+    def static_gain_of_lags(self) -> float:
+        """``sum_i c_i``: what the lags add once everything has settled."""
+        return float(self.lag_weights.sum())
+
+    @property
+    def min_slope(self) -> float:
+        """The smallest slope of the instantaneous map (static part plus ``kappa``)."""
+        return float(self.static.min_slope) + self.instantaneous_lag_gain
+
+    @property
+    def is_invertible(self) -> bool:
+        return bool(self.static.is_invertible or self.min_slope > 0) and self.min_slope > 0
+
+    @property
+    def inverse_is_stable(self) -> bool:
+        """The sufficient condition of the module docstring: ``K + sum_i min(c_i, 0) > 0``."""
+        return float(self.static.min_slope) + float(np.minimum(self.lag_weights, 0.0).sum()) > 0
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, RateDependent):
+            return NotImplemented
+        return (type(self.static) is type(other.static) and self.static == other.static
+                and np.array_equal(self.taus, other.taus)
+                and np.array_equal(self.lag_weights, other.lag_weights) and self.dt == other.dt
+                and self.input_tau == other.input_tau)
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return (f"RateDependent({self.static!r}, taus={self.taus.tolist()}, "
+                f"lag_weights={np.round(self.lag_weights, 6).tolist()}, dt={self.dt:g}, "
+                f"input_tau={self.input_tau:g})")
+
+    # -- simulation ------------------------------------------------------------------------------
+    def lagged_input(self, u: Any) -> FloatArray:
+        """``v``: the input after the input lag."""
+        return first_order_lag(as_signal("u", u), self.input_lag_factor)
+
+    def simulate(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The output (µm) for the input ``u`` (V) sampled at the model's ``dt``, from rest."""
+        check_dt(dt, self.dt, self.kind)
+        v = self.lagged_input(u)
+        y = np.array(self.static.simulate(v), dtype=np.float64)
+        for a, c in zip(self._a, self.lag_weights):
+            y += c * first_order_lag(v, float(a))
+        return y
+
+    def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        return self.simulate(u, dt)
+
+    def stepper(self, dt: float | None = None) -> "RateDependentStepper":
+        check_dt(dt, self.dt, self.kind)
+        return RateDependentStepper(self)
+
+    def compensator(self, dt: float | None = None, *, u_range: Any = None,
+                    max_slew: float | None = None) -> "RateCompensator":
+        """The exact inverse of the module docstring, desired µm in, volts out."""
+        check_dt(dt, self.dt, self.kind)
+        return RateCompensator(self, u_range=u_range, max_slew=max_slew)
+
+    def inverse_stepper(self) -> "RateCompensator":
+        """The compensator without output limits (the name earlier versions used)."""
+        return RateCompensator(self)
+
+    # -- files -----------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return {"static": nested_to_dict(self.static), "taus": self.taus.tolist(),
+                "lag_weights": self.lag_weights.tolist(), "dt": self.dt, "input_tau": self.input_tau}
+
+    @classmethod
+    def from_dict(cls, params: dict[str, Any]) -> "RateDependent":
+        static = nested_from_dict(params["static"], "the static part of a rate-dependent model")
+        return cls(static=static, taus=params.get("taus", []), lag_weights=params.get("lag_weights", []),
+                   dt=params["dt"], input_tau=params.get("input_tau", 0.0))
+
+    def describe(self) -> dict[str, Any]:
+        """The structure in a few plain numbers (for reports)."""
+        return {"static": kind_of(self.static), "input_tau_s": self.input_tau,
+                "output_taus_s": self.taus.tolist(), "lag_weights": self.lag_weights.tolist(),
+                "inverse_is_stable": self.inverse_is_stable}
+
+
+#: The name of the first version, when the static part was always a P-I model.
+RateDependentPI = RateDependent
+
+
+class RateDependentStepper:
+    """Streaming simulation of a :class:`RateDependent` model (same arithmetic as ``simulate``)."""
+
+    def __init__(self, model: RateDependent):
+        self.model = model
+        self._static = model.static.stepper()
+        self._b = model.input_lag_factor
+        self.reset()
+
+    def reset(self) -> None:
+        self._static.reset()
+        self._v = 0.0
+        self._s = np.zeros(self.model.taus.size)
+
+    def step(self, u_k: float) -> float:
+        x = float(u_k)
+        if not math.isfinite(x):
+            raise ValueError(f"u_k must be finite, got {u_k!r}")
+        b = self._b
+        self._v = x if b == 0.0 else (1.0 - b) * x + b * self._v
+        y = float(self._static.step(self._v))
+        a = self.model._a
+        for i in range(a.size):
+            self._s[i] = (1.0 - a[i]) * self._v + a[i] * self._s[i]
+            y += float(self.model.lag_weights[i]) * self._s[i]
+        return y
+
+
+class RateCompensator(Compensator):
+    """Exact sample-by-sample inverse of a :class:`RateDependent` model (module docstring)."""
+
+    def __init__(self, model: RateDependent, *, u_range: Any = None, max_slew: float | None = None):
+        super().__init__(u_range=u_range, max_slew=max_slew)
+        if not model.min_slope > 0:
+            raise ValueError(f"the model is not invertible: its instantaneous map has slope "
+                             f"{model.min_slope:.4g} <= 0 somewhere")
+        self.model = model
+        self.kappa = model.instantaneous_lag_gain
+        self._inverse = model.static.slope_inverse(self.kappa)
+        self._b = model.input_lag_factor
+        self.reset()
+
+    @property
+    def inverse(self) -> Any:
+        """The static part's inverse with the lags' instantaneous gain (a P-I model for P-I)."""
+        return getattr(self._inverse, "model", self._inverse)
+
+    def _reset(self) -> None:
+        self._inverse.reset()
+        self._s = np.zeros(self.model.taus.size)
+        self._v = 0.0
+
+    def _step(self, x_d: float) -> float:
+        m = self.model
+        a, c = m._a, m.lag_weights
+        known = 0.0
+        for i in range(a.size):
+            known += float(c[i]) * float(a[i]) * self._s[i]
+        v = float(self._inverse.step(x_d - known))
+        for i in range(a.size):
+            self._s[i] = (1.0 - a[i]) * v + a[i] * self._s[i]
+        b = self._b
+        u = v if b == 0.0 else (v - b * self._v) / (1.0 - b)  # exact inverse of the input lag
+        self._v = v
+        return u
+
+
+#: The name of the first version.
+RatePIInverse = RateCompensator
