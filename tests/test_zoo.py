@@ -1,0 +1,76 @@
+"""Commissioning, model selection and feedforward across the plant zoo (issue 11, items 5 and 7).
+
+The zoo (:mod:`tests.plants.zoo`) holds six piezo-like stages of structures the project's models
+do not share, 2-20 kHz, delays 0-5 samples, unipolar and bipolar, strokes 1.5-100 µm. Nothing is
+tuned on them. For each: ``commission`` chooses and fits a model on its own data, and the
+feedforward alone (``ctl.track(ref, feedback=False, learning=False)``) tracks 1, 3 and 5 Hz
+sinusoids over 10-90 % of the stage's steady stroke (the range a user would read off a full-range
+open-loop loop) to within 2 % of the span (issue 11's goal), with a command free of chatter.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import piezohyst as ph
+
+from .plants.zoo import zoo
+
+STAGES = zoo(seed=0)
+NAMES = [s.name.split(",")[0] for s in STAGES]
+
+#: (stage, frequency) pairs that miss the 2 % goal today, with the reason; strict, so a fix shows
+KNOWN_SHORT = {
+    ("asymmetric Bouc-Wen", 3.0): "rate dependence that acts on the hysteresis' output (creep of the "
+                                   "hysteretic strain) is outside the model family; 2.2 % measured",
+    ("asymmetric Bouc-Wen", 5.0): "as at 3 Hz; 3.1 % measured",
+}
+
+
+def steady_range(stage):
+    """10-90 % of the output span of the second cycle of a full-range 1 Hz open-loop loop."""
+    lo_u, hi_u = stage.u_range
+    d = stage.excite(ph.sinusoid(1.0, 2, lo_u, hi_u, stage.dt))
+    y = d.y[d.y.size // 2:]
+    lo, hi = float(y.min()), float(y.max())
+    return lo + 0.1 * (hi - lo), lo + 0.9 * (hi - lo)
+
+
+@pytest.fixture(scope="module", params=range(len(STAGES)), ids=NAMES)
+def commissioned(request):
+    stage = zoo(seed=0)[request.param]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ph.ClippingWarning)
+        ctl = ph.commission(stage, tune=False)
+    return stage, ctl, steady_range(stage)
+
+
+@pytest.mark.slow
+def test_selection_predicts_held_out_data(commissioned):
+    stage, ctl, _ = commissioned
+    hold = ctl.fit.info["holdout"]
+    # the chosen model predicts the commissioning run's validation part to within 1.5 % of span
+    assert hold["percent_of_span"] < 1.5, (stage.name, ctl.fit.info["chosen"], hold)
+    assert ctl.model.is_invertible
+    # it is the best candidate or a simpler one within the selection's margin
+    best = min(c["holdout_rmse"] for c in ctl.fit.info["candidates"])
+    assert hold["rmse"] <= best / (1.0 - 0.02) ** 3 + 1e-12
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("freq", [1.0, 3.0, 5.0])
+def test_feedforward_alone_within_2_percent(commissioned, freq, request):
+    stage, ctl, (a, b) = commissioned
+    key = (stage.name.split(",")[0], freq)
+    if key in KNOWN_SHORT:
+        request.applymarker(pytest.mark.xfail(reason=KNOWN_SHORT[key], strict=True))
+    ref = ph.sinusoid(freq, 3, a, b, stage.dt)
+    period = int(round(1.0 / (freq * stage.dt)))
+    out = ctl.track(ref, feedback=False, learning=False, period=period)
+    cmd = out.command[period:]
+    # no chatter: the command moves no more per sample than the reference does, scaled by the
+    # stage's mean gain, with room for the inverse's steeper slope just after reversals
+    gain = np.ptp(cmd) / np.ptp(ref)
+    assert np.abs(np.diff(cmd)).max() <= 20 * gain * np.abs(np.diff(ref)).max()
+    assert out.e_max_percent <= 2.0, (stage.name, ctl.fit.info["chosen"], out.e_max_percent)
