@@ -415,11 +415,34 @@ def test_too_large_for_the_memory_limit(tmp_path, monkeypatch, ref):
         ph.load_dataset(p)
     q = tmp_path / "big.npz"
     np.savez(q, u=U, y=Y)
-    with pytest.raises(DataError, match=r"big\.npz: reading 2 arrays of 40 values needs about"):
+    with pytest.raises(DataError, match=r"big\.npz: reading 2 arrays of up to 40 values needs about"):
         ph.load_dataset(q, fs=1)
     monkeypatch.setenv("PIEZOHYST_MAX_MEMORY", "lots")
     with pytest.raises(DataError, match="PIEZOHYST_MAX_MEMORY must be a size in bytes"):
         ph.load_dataset(p)
+
+
+def _sparse(path, size):
+    try:
+        os.truncate(path, size)
+    except OSError:  # pragma: no cover - a file system without sparse files
+        pytest.skip("cannot make a sparse file here")
+
+
+def test_a_terabyte_file_is_refused_before_reading_it(tmp_path):
+    # a real (sparse) 1 TiB file, default limit: refused from its size, in well under a second
+    p = tmp_path / "huge.csv"
+    p.write_text("t,u,y\n" + "".join(f"{i * 1e-3:.6f},{np.sin(i):.6f},{np.cos(i):.6f}\n" for i in range(3000)))
+    _sparse(p, 1 << 40)
+    with pytest.raises(DataError, match=r"huge\.csv: reading 3 columns of about [\d,]+ rows needs about [\d.]+ TiB "
+                                        r"of memory, over the limit of"):
+        ph.load_dataset(p)
+    q = tmp_path / "huge.npy"
+    with open(q, "wb") as fh:
+        np.lib.format.write_array_header_1_0(fh, {"descr": "<f8", "fortran_order": False, "shape": (10**11, 3)})
+    _sparse(q, 24 * 10**11 + 128)
+    with pytest.raises(DataError, match=r"huge\.npy: reading 1 array of up to 300,000,000,000 values needs about"):
+        ph.load_dataset(q, t_col=0, u_col=1, y_col=2)
 
 
 def test_a_resampled_gap_is_also_size_checked(tmp_path):

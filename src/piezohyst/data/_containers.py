@@ -105,10 +105,16 @@ def hdf5(path: Path, *, matlab: bool) -> Iterator[dict[str, Any]]:
     budget = _Budget(where)
     try:
         root: dict[str, Any] = {}
-        for k in f.keys():
-            if k.startswith("#"):  # "#refs#", "#subsystem#"
-                continue
-            root[k] = _h5_node(f, f[k], matlab, budget, 1)
+        try:
+            for k in f.keys():
+                if k.startswith("#"):  # "#refs#", "#subsystem#"
+                    continue
+                root[k] = _h5_node(f, f[k], matlab, budget, 1)
+        except DataError:
+            raise
+        except Exception as exc:  # h5py reports damage as KeyError, OSError, ValueError, ...
+            raise DataError(f"{where}: a damaged {'MATLAB v7.3' if matlab else 'HDF5'} file "
+                            f"({_first_line(exc)})") from None
         yield root
     finally:
         f.close()
@@ -176,8 +182,6 @@ def _h5_node(f: Any, obj: Any, matlab: bool, budget: _Budget, depth: int) -> Any
 @contextlib.contextmanager
 def npz(path: Path) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
     """(tree, saved meta) of a .npz archive; arrays read lazily, never with pickles."""
-    import zipfile
-
     where = str(path)
     try:
         z = np.load(str(path), allow_pickle=False)
@@ -194,7 +198,7 @@ def npz(path: Path) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
             try:
                 with z.zip.open(name + ".npy") as fh:
                     shape, dtype = _npy_header(fh)
-            except (KeyError, ValueError, zipfile.BadZipFile, OSError) as exc:
+            except Exception as exc:  # zipfile, zlib and format errors of a damaged archive
                 root[name] = Opaque(f"an unreadable member ({_first_line(exc)})")
                 continue
             if dtype.hasobject:

@@ -6,6 +6,7 @@ import hashlib
 import importlib.util
 import json
 import os
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,7 @@ from ._text import HEAD_BYTES, NotText, TextSource
 _HDF5 = b"\x89HDF\r\n\x1a\n"
 _OLE2 = b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1"
 _TEXT_SUFFIXES = ".csv .tsv .txt .dat .asc .lvm"
+_HASH_BESIDE = 4 << 20  # files from this size on are hashed in a thread while they are parsed
 
 #: format -> (what to install, the module that provides it); None when always available
 _ENGINES = {"parquet": ("pyarrow", "pyarrow"), "xlsx": ("openpyxl", "openpyxl"),
@@ -112,10 +114,17 @@ def _zip_kind(p: Path) -> str:
     return "zip"
 
 
-def file_sha256(path: Path) -> str:
-    """SHA-256 of the file's bytes (provenance in ``meta``)."""
-    with open(path, "rb") as fh:
-        return hashlib.file_digest(fh, "sha256").hexdigest()
+def file_sha256(path: Path, stop: threading.Event | None = None) -> str | None:
+    """SHA-256 of the file's bytes (provenance in ``meta``); None if ``stop`` was set first."""
+    h = hashlib.sha256()
+    buf = bytearray(1 << 20)
+    view = memoryview(buf)
+    with open(path, "rb", buffering=0) as fh:
+        while n := fh.readinto(buf):
+            h.update(view[:n])
+            if stop is not None and stop.is_set():
+                return None
+    return h.hexdigest()
 
 
 def load_dataset(
@@ -187,16 +196,24 @@ def load_dataset(
     opts = dict(t_col=t_col, u_col=u_col, y_col=y_col, fs=fs, units=units, resample=resample, max_memory=limit)
     if fmt != "text" and (delimiter, decimal, encoding) != (None, None, None):
         raise DataError(f"{p}: delimiter=, decimal= and encoding= apply to text files; this is {fmt}")
-    # the file's hash runs beside the parse (both release the GIL): provenance at no extra wait
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        digest = pool.submit(file_sha256, p)
+    if size < _HASH_BESIDE:
         ds = _load(p, head, size, fmt, opts, delimiter, decimal, encoding)
-        try:
-            sha = digest.result()
-        except OSError as exc:
-            raise DataError(f"{p}: cannot read it ({exc.strerror or exc})") from None
+        sha = file_sha256(p)
+    else:  # a big file's hash runs beside the parse (both release the GIL): no extra wait
+        from concurrent.futures import ThreadPoolExecutor
+
+        stop = threading.Event()
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            digest = pool.submit(file_sha256, p, stop)
+            try:
+                ds = _load(p, head, size, fmt, opts, delimiter, decimal, encoding)
+            except BaseException:
+                stop.set()  # a refused file (too large, say) is not hashed to the end
+                raise
+            try:
+                sha = digest.result()
+            except OSError as exc:
+                raise DataError(f"{p}: cannot read it ({exc.strerror or exc})") from None
     ds.meta["source"] = str(p)
     ds.meta["source_sha256"] = sha
     return ds

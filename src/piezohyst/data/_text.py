@@ -141,10 +141,13 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
         text = head[bom:].decode("latin-1")
         encoding = "latin-1"
     text = text.lstrip("\ufeff")
-    bad = sum(1 for ch in text[:4096] if ord(ch) < 32 and ch not in "\t\r\n\f\v")
-    if bad > 0.01 * max(1, len(text[:4096])) or "\x00" in text:
-        raise NotText("it contains control characters")
+    if "\x00" in text:
+        raise NotText("it contains NUL characters")
     lines = _LINE_SPLIT.split(text)
+    body = "".join(ln for ln in lines[:400] if not ln.lstrip().startswith("#"))[:4096]
+    bad = sum(1 for ch in body if ord(ch) < 32 and ch not in "\t\f\v")
+    if bad > 0.01 * max(1, len(body)):
+        raise NotText("it contains control characters")
     if truncated:
         if len(lines) < 2:
             raise DataError(f"{where}: line 1 is longer than {HEAD_BYTES} bytes; not a table of numbers")
@@ -171,8 +174,10 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     if not content:
         raise DataError(f"{where}: no data (the file is empty or holds only comments)")
 
+    present = "".join(lines[li] for li in content[:_SAMPLE])
     candidates = [(delimiter, decimal or ".")] if delimiter is not None else \
-        [c for c in CANDIDATES if decimal is None or c[1] == decimal]
+        [c for c in CANDIDATES if (decimal is None or c[1] == decimal)
+         and (c[0] is None or c[0] in present) and (c[1] == "." or "," in present)]
     if delimiter is not None and decimal is None and delimiter != ",":
         candidates.append((delimiter, ","))
     cache: dict[tuple[int, str | None, str], tuple[str, ...]] = {}
@@ -222,6 +227,10 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
         if good and (not window or 2 * sum(window) >= len(window)):
             start = k
             break
+    # a ragged or damaged first data row still belongs to the table: walk back over lines that
+    # start with a number (preamble lines start with a key: "Samples;1000")
+    while start > 0 and classes(sample[start - 1], best)[:1] == ("n",) and not ok[start - 1]:
+        start -= 1
     first_data = content[start]
     run = [li for li, good in zip(sample[start:start + _RUN], ok[start:start + _RUN]) if good]
     trailing = n > 1 and all(classes(li, best)[-1] == "e" for li in run)
@@ -409,7 +418,7 @@ class TextSource:
                 except MemoryError:
                     raise DataError(f"{self.where}: ran out of memory reading it; lower PIEZOHYST_MAX_MEMORY so "
                                     f"such files are refused up front, or split the file") from None
-                except (ValueError, pd.errors.ParserError) as exc:
+                except Exception as exc:  # ValueError, ParserError, OverflowError, OSError, ...
                     problem = exc
                     break
             if df is not None:

@@ -435,17 +435,27 @@ class TreeSource:
                                     f"{example!r} (u_col=/y_col= in Python, --u-col/--y-col at the command line)")
                 raise DataError(f"{self.where}: {sel.path!r} has shape {leaf.describe()}; a signal is a vector")
             leaves.append(leaf)
-        need = sum(leaf.size * (8 + leaf.dtype.itemsize) for leaf in leaves)
-        check_size(self.where, need, limit, f"reading {len(leaves)} arrays of {max(x.size for x in leaves):,} values")
+        distinct = {sel.path: leaf for sel, leaf in zip(sels, leaves)}  # columns of one matrix: read once
+        need = sum(leaf.size * (8 + leaf.dtype.itemsize) for leaf in distinct.values())
+        count = len(distinct)
+        check_size(self.where, need, limit, f"reading {count} array{'s' if count > 1 else ''} of up to "
+                                            f"{max(x.size for x in distinct.values()):,} values")
+        cache: dict[str, np.ndarray] = {}
         out = []
         for sel, leaf in zip(sels, leaves):
             try:
-                a = leaf.read()
+                a = cache[sel.path] if sel.path in cache else leaf.read()
             except DataError:
                 raise
             except Exception as exc:  # a damaged file
                 raise DataError(f"{self.where}: cannot read {sel.path!r} ({type(exc).__name__}: "
                                 f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
+            cache[sel.path] = a
+            if a.shape != leaf.shape and a.size == leaf.size:
+                a = a.reshape(leaf.shape)
+            if a.shape != leaf.shape:
+                raise DataError(f"{self.where}: {sel.path!r} holds {a.shape} values where its header says "
+                                f"{leaf.shape}; the file is damaged")
             if sel.axis is not None:
                 a = a[:, sel.index] if sel.axis == 1 else a[sel.index, :]
             out.append(np.array(a, dtype=np.float64).ravel())

@@ -113,7 +113,12 @@ def split_unit(name: str) -> NameUnit:
 
 def normal_name(name: str) -> str:
     """The name without its unit, lower case, separators as ``_``: ``"Input Voltage [V]"`` -> ``"input_voltage"``."""
-    base = split_unit(name).base
+    nu = split_unit(name)
+    base = nu.base
+    if nu.explicit:  # "t_s [s]": a unit suffix under the bracketed one
+        inner = split_unit(base)
+        if inner.unit is not None and not inner.explicit:
+            base = inner.base
     base = unicodedata.normalize("NFKC", base).strip().strip("'\"").lower()
     return re.sub(r"[\s_\-.]+", "_", base).strip("_")
 
