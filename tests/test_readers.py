@@ -456,7 +456,7 @@ def test_a_resampled_gap_is_also_size_checked(tmp_path):
     "payload, name, match",
     [
         (b"TDSm\x00\x00\x00\x00" + bytes(64), "run.tdms", r"a LabVIEW TDMS file"),
-        (bytes(range(256)) * 8, "blob.bin", r"not a format piezohyst reads \(it contains NUL bytes\)"),
+        (bytes(range(256)) * 8, "blob.bin", r"not a text file \(it contains NUL bytes\) nor another format piezohyst reads"),
         (None, "notes.zip", r"a zip archive that is neither \.npz nor a spreadsheet"),
         (b"PK\x03\x04garbage", "broken.npz", r"a damaged zip archive"),
     ],
@@ -484,6 +484,36 @@ def test_objects_are_never_unpickled(tmp_path):
     np.savez(q, u=np.array([object(), object()], dtype=object), y=Y)
     with pytest.raises(DataError, match=r"evil\.npz: 'u' \(the input voltage u\) is Python objects, which are never"):
         ph.load_dataset(q, fs=1)
+
+
+def test_a_damaged_mat_file_is_refused_not_crashed(tmp_path, ref):
+    # Found by fuzzing: one byte set to 220 in a variable's data-type tag made scipy's compiled
+    # v5 reader crash the interpreter (segmentation fault). The file is now checked first.
+    p = tmp_path / "ok.mat"
+    sio.savemat(p, {"t": T, "u": U, "y": Y})
+    same(ph.load_dataset(p), ref)
+    data = bytearray(p.read_bytes())
+    # header 128 bytes; variable t: miMATRIX tag (8), flags (16), dims (16), name "t" (8): data tag at 176
+    assert data[176] == 9  # miDOUBLE
+    data[176] = 220
+    q = tmp_path / "damaged.mat"
+    q.write_bytes(bytes(data))
+    with pytest.raises(DataError, match=r"damaged\.mat: a damaged MATLAB file \(unknown element type 220"):
+        ph.load_dataset(q)
+    q.write_bytes(p.read_bytes()[:300])
+    with pytest.raises(DataError, match=r"damaged\.mat: a damaged MATLAB file \(the variable at byte \d+ runs past"):
+        ph.load_dataset(q)
+
+
+def test_matlab_v4_and_ascii_mat_files(tmp_path, ref):
+    p = tmp_path / "v4.mat"
+    sio.savemat(p, {"t": T, "u": U, "y": Y}, format="4")
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["format"] == "mat-v4"
+    q = tmp_path / "ascii.mat"  # MATLAB's save -ascii: a text table under a .mat name
+    np.savetxt(q, np.column_stack([T, U, Y]), fmt="%.15e")
+    same(ph.load_dataset(q, t_col=0, u_col=1, y_col=2), ref)
 
 
 def test_paths_into_structs_that_do_not_exist(tmp_path):

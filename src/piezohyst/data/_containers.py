@@ -53,23 +53,34 @@ def _check_tree(where: str, node: Any, budget: _Budget | None = None, depth: int
 
 
 # ------------------------------------------------------------------------------------------------
-def mat_v5(path: Path, limit: int) -> dict[str, Any]:
-    """Variables of a MATLAB v4/v5/v7 file (scipy), as a tree."""
+def mat_v5(path: Path, limit: int, *, v4: bool = False) -> dict[str, Any]:
+    """Variables of a MATLAB v4/v5/v7 file (scipy), as a tree; v5/v7 files are checked first."""
+    import io
+
     from scipy.io import loadmat, whosmat
 
+    from ._mat5 import Malformed, check
+
     where = str(path)
+    check_size(where, path.stat().st_size, limit, "reading this MATLAB file")
+    data = path.read_bytes()
+    if not v4:  # scipy's compiled reader can crash on a damaged file: check its structure first
+        try:
+            need = check(data, limit)
+        except Malformed as exc:
+            raise DataError(f"{where}: a damaged MATLAB file ({exc})") from None
+        check_size(where, need + len(data), limit, "loading its variables")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        if v4:
+            try:
+                info = whosmat(io.BytesIO(data))
+            except Exception as exc:  # scipy raises many kinds for damaged files
+                raise DataError(f"{where}: not a readable MATLAB file ({_first_line(exc)})") from None
+            need = sum(math.prod(shape) * (8 + _MATLAB_NUMERIC.get(cls, 8)) for _n, shape, cls in info)
+            check_size(where, need, limit, f"loading its {len(info)} variables")
         try:
-            info = whosmat(str(path))
-        except Exception as exc:  # scipy raises many kinds for damaged files
-            raise DataError(f"{where}: not a readable MATLAB file ({_first_line(exc)})") from None
-        need = 0.0
-        for _name, shape, cls in info:
-            need += math.prod(shape) * (8 + _MATLAB_NUMERIC.get(cls, 8))
-        check_size(where, need, limit, f"loading its {len(info)} variables")
-        try:
-            m = loadmat(str(path), simplify_cells=True)
+            m = loadmat(io.BytesIO(data), simplify_cells=True)
         except NotImplementedError:  # a v7.3 file that got here by its name
             raise DataError(f"{where}: a MATLAB v7.3 file that is not valid HDF5") from None
         except Exception as exc:

@@ -229,7 +229,8 @@ def _load(p: Path, head: bytes, size: int, fmt: str, opts: dict[str, Any],
         try:
             src = TextSource(p, head, size, delimiter=delimiter, decimal=decimal, encoding=encoding)
         except NotText as exc:
-            raise DataError(f"{where}: not a format piezohyst reads ({exc}); {supported()}") from None
+            raise DataError(f"{where}: not a text file ({exc}) nor another format piezohyst reads; "
+                            f"{supported()}") from None
         return assemble(src, extra_meta=src.lay.saved_meta, **opts)
     if fmt == "npz":
         with c.npz(p) as (root, saved):
@@ -237,7 +238,8 @@ def _load(p: Path, head: bytes, size: int, fmt: str, opts: dict[str, Any],
     if fmt == "npy":
         return assemble(TreeSource(c.npy(p), where=where, fmt="npy", kind="array"), **opts)
     if fmt in ("mat-v5", "mat-v4"):
-        return assemble(TreeSource(c.mat_v5(p, opts["max_memory"]), where=where, fmt=fmt), **opts)
+        root = c.mat_v5(p, opts["max_memory"], v4=fmt == "mat-v4")
+        return assemble(TreeSource(root, where=where, fmt=fmt), **opts)
     if fmt in ("mat-v7.3", "hdf5"):
         with c.hdf5(p, matlab=fmt == "mat-v7.3") as root:
             kind = "variable" if fmt == "mat-v7.3" else "dataset"

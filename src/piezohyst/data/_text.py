@@ -221,12 +221,11 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     (_score, n, cols), best = found[0]
     delim, dec = best
     ok = [fits_pattern(classes(li, best), n, cols) for li in sample]
-    start = 0
-    for k, good in enumerate(ok):  # the first fitting line most of whose next lines fit too
-        window = ok[k + 1:k + 1 + _RUN]
-        if good and (not window or 2 * sum(window) >= len(window)):
-            start = k
-            break
+    # the first fitting line most of whose next lines fit too (a preamble line may fit by chance),
+    # else simply the first fitting line
+    start = next((k for k, good in enumerate(ok)
+                  if good and 2 * sum(ok[k + 1:k + 1 + _RUN]) >= len(ok[k + 1:k + 1 + _RUN])),
+                 ok.index(True))
     # a ragged or damaged first data row still belongs to the table: walk back over lines that
     # start with a number (preamble lines start with a key: "Samples;1000")
     while start > 0 and classes(sample[start - 1], best)[:1] == ("n",) and not ok[start - 1]:
