@@ -367,8 +367,8 @@ def test_sample_rate_that_disagrees_with_the_time_column(tmp_path, ref):
         ("t,u,y\n0,1,2\n0.1,2,3\n0.1,3,4\n", r"time must increase from sample to sample, but at line 4"),
         ("t,u,y [V]\n0,1,2\n0.1,2,3\n", r"'y \[V\]' is in V, a voltage, but it is read as the output displacement"),
         ("t,u [inch],y\n0,1,2\n0.1,2,3\n", r"the unit 'inch' of 'u \[inch\]'.* is not one piezohyst knows"),
-        ("a,b,c\n0,1,2\n0.1,2,3\n", r"cannot tell which column is the input voltage u; name it \(u_col= in Python, "
-                                    r"--u-col at the command line\); the columns are \['a', 'b', 'c'\]"),
+        ("a,b,c\n0,1,2\n0.1,2,3\n", (r"cannot tell which column is the input voltage u; name it \(u_col= in Python, "
+                                     r"--u-col at the command line\); the columns are \['a', 'b', 'c'\]")),
         ("0 1 2\n1 2 3\n", r"cannot tell which column is the input voltage u.*no header line"),
         ("t,v,x,u\n0,1,2,3\n0.1,2,3,4\n", None),  # u wins over v by its first alias: loads
     ],

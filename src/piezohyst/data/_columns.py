@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Any, Hashable, Protocol, Sequence
+from collections.abc import Hashable, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -291,7 +292,7 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
                     f"({100 * rel:.3g} % off; {100 * UNIFORM_TOLERANCE:g} % allowed); resample it onto a "
                     f"uniform grid (resample=True in Python, --resample at the command line) or fix the file")
             span = float(t[-1] - t[0])
-            count = int(math.floor(span / target_dt * (1 + 1e-12))) + 1
+            count = math.floor(span / target_dt * (1 + 1e-12)) + 1
             check_size(where, 8.0 * 3 * count, limit, f"resampling to {count} samples")
             grid = t[0] + np.arange(count) * target_dt
             for r in ("u", "y"):

@@ -12,8 +12,9 @@ import contextlib
 import json
 import math
 import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -117,7 +118,7 @@ def hdf5(path: Path, *, matlab: bool) -> Iterator[dict[str, Any]]:
     try:
         root: dict[str, Any] = {}
         try:
-            for k in f.keys():
+            for k in f:
                 if k.startswith("#"):  # "#refs#", "#subsystem#"
                     continue
                 root[k] = _h5_node(f, f[k], matlab, budget, 1)
@@ -153,7 +154,7 @@ def _h5_node(f: Any, obj: Any, matlab: bool, budget: _Budget, depth: int) -> Any
                 return [{k: _h5_node(f, f[refs[k][i]], matlab, budget, depth + 1) for k in names}
                         for i in range(count)]
             return {k: _h5_node(f, v, matlab, budget, depth + 1) for k, v in fields.items()}
-        return {k: _h5_node(f, obj[k], matlab, budget, depth + 1) for k in obj.keys()}
+        return {k: _h5_node(f, obj[k], matlab, budget, depth + 1) for k in obj}
     if not isinstance(obj, h5py.Dataset):
         return Opaque(f"an HDF5 {type(obj).__name__}")
     if matlab:
@@ -173,14 +174,14 @@ def _h5_node(f: Any, obj: Any, matlab: bool, budget: _Budget, depth: int) -> Any
             if obj.dtype.names:
                 return Opaque(f"complex numbers ({cls})")
             shape = tuple(int(d) for d in reversed(obj.shape))
-            return Leaf(shape, obj.dtype, lambda o=obj: np.asarray(o[()]).T)
+            return Leaf(shape, obj.dtype, _h5_reader(obj, transpose=True))
         if cls is None and obj.dtype == h5py.ref_dtype:
             refs = obj[()].ravel()
             return [_h5_node(f, f[r], matlab, budget, depth + 1) for r in refs]
         return Opaque(f"a MATLAB object of class {cls!r} that can only be read in MATLAB")
     kind = obj.dtype.kind
     if kind in "fiu" and not obj.dtype.names:
-        return Leaf(tuple(int(d) for d in obj.shape), obj.dtype, lambda o=obj: np.asarray(o[()]))
+        return Leaf(tuple(int(d) for d in obj.shape), obj.dtype, _h5_reader(obj, transpose=False))
     if kind in "SUO" and obj.shape == ():
         v = obj[()]
         return v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v)
@@ -221,12 +222,24 @@ def npz(path: Path) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
                 except ValueError:
                     pass
             elif dtype.kind in "fiu" and not dtype.names:
-                root[name] = Leaf(shape, dtype, lambda n=name: z[n])
+                root[name] = Leaf(shape, dtype, _npz_reader(z, name))
             else:
                 root[name] = Opaque(f"values of type {dtype}")
         yield root, meta
     finally:
         z.close()
+
+
+def _h5_reader(obj: Any, *, transpose: bool) -> Callable[[], np.ndarray]:
+    """Read an HDF5 dataset when asked (MATLAB's are column-major: transposed)."""
+    def read() -> np.ndarray:
+        a = np.asarray(obj[()])
+        return a.T if transpose else a
+    return read
+
+
+def _npz_reader(z: Any, name: str) -> Callable[[], np.ndarray]:
+    return lambda: np.asarray(z[name])
 
 
 def _npy_header(fh: Any) -> tuple[tuple[int, ...], np.dtype]:

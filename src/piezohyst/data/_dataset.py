@@ -72,7 +72,7 @@ class Dataset:
         d = np.diff(self.t)
         return bool(np.all(np.abs(d - self.dt) <= 1e-6 * self.dt))
 
-    def slice(self, start: int | None = None, stop: int | None = None) -> "Dataset":
+    def slice(self, start: int | None = None, stop: int | None = None) -> Dataset:
         """Samples ``start:stop`` as a new data set (meta says which)."""
         sl = slice(start, stop)
         meta = {**self.meta, "slice": [start, stop]}
@@ -89,9 +89,9 @@ class Dataset:
     # --------------------------------------------------------------------------------------------
     @classmethod
     def from_dataframe(
-        cls, df: "pd.DataFrame", t_col: Any = None, u_col: Any = None, y_col: Any = None, *,
+        cls, df: pd.DataFrame, t_col: Any = None, u_col: Any = None, y_col: Any = None, *,
         fs: float | None = None, units: dict[str, Any] | None = None, resample: bool = False,
-    ) -> "Dataset":
+    ) -> Dataset:
         """A data set from the columns of a pandas DataFrame, read as :func:`load_dataset` reads a file.
 
         Parameters
@@ -139,7 +139,7 @@ class Dataset:
         return assemble(FrameSource(df, where="DataFrame"), t_col=t_col, u_col=u_col, y_col=y_col,
                         fs=fs, units=units, resample=resample)
 
-    def to_dataframe(self) -> "pd.DataFrame":
+    def to_dataframe(self) -> pd.DataFrame:
         """The samples as a DataFrame with columns ``t`` (s), ``u`` (V), ``y`` (µm).
 
         ``df.attrs["units"]`` holds the units and ``df.attrs["meta"]`` a copy of :attr:`meta`;

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
-from ._columns import Key, ROLE_WORDS, flag, guess_by_alias, match_name
+from ._columns import ROLE_WORDS, Key, flag, guess_by_alias, match_name
 from ._dataset import DataError
 from ._units import normal_name
 

@@ -81,7 +81,7 @@ def detect_format(p: Path, head: bytes) -> str:
         return "hdf5"
     if head.startswith(b"\x93NUMPY"):
         return "npy"
-    if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
+    if head.startswith((b"PK\x03\x04", b"PK\x05\x06")):
         return _zip_kind(p)
     if head.startswith(b"PAR1"):
         return "parquet"
@@ -193,7 +193,8 @@ def load_dataset(
     p, head, size = open_checked(path)
     limit = default_limit() if max_memory is None else parse_size(max_memory, "max_memory")
     fmt = detect_format(p, head)
-    opts = dict(t_col=t_col, u_col=u_col, y_col=y_col, fs=fs, units=units, resample=resample, max_memory=limit)
+    opts = {"t_col": t_col, "u_col": u_col, "y_col": y_col, "fs": fs, "units": units, "resample": resample,
+            "max_memory": limit}
     if fmt != "text" and (delimiter, decimal, encoding) != (None, None, None):
         raise DataError(f"{p}: delimiter=, decimal= and encoding= apply to text files; this is {fmt}")
     if size < _HASH_BESIDE:

@@ -16,13 +16,14 @@ import csv
 import json
 import re
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from ._columns import Key, ROLE_WORDS, check_size, flag, guess_by_alias, match_name
+from ._columns import ROLE_WORDS, Key, check_size, flag, guess_by_alias, match_name
 from ._dataset import DataError
 from ._units import is_unit
 
@@ -98,7 +99,7 @@ def detect_encoding(head: bytes) -> tuple[str, int]:
     """(encoding, length of the byte-order mark); raise NotText for binary data."""
     if head.startswith(codecs.BOM_UTF8):
         return "utf-8", 3
-    if head.startswith(codecs.BOM_UTF16_LE) or head.startswith(codecs.BOM_UTF16_BE):
+    if head.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
         return "utf-16", 0  # the codec reads the mark itself
     sample = head[:4096]
     if b"\x00" in sample:
@@ -353,7 +354,7 @@ class TextSource:
     def label(self, key: Key) -> str:
         if self.lay.names is None:
             return str(self.lay.offered.index(key)) if key in self.lay.offered else str(key)
-        return self.lay.names[key]
+        return self.lay.names[int(key)]  # type: ignore[call-overload]
 
     def unit_name(self, key: Key) -> str:
         return self.label(key)
@@ -361,7 +362,7 @@ class TextSource:
     def stated_unit(self, key: Key) -> str | None:
         if self.lay.units is None:
             return None
-        u = self.lay.units[key]
+        u = self.lay.units[int(key)]  # type: ignore[call-overload]
         return u or None
 
     # -- reading ---------------------------------------------------------------------------------
@@ -369,13 +370,13 @@ class TextSource:
         return max(0.0, self.size - self.lay.data_offset) / self.lay.bytes_per_row
 
     def read(self, keys: Sequence[Key], limit: int) -> list[np.ndarray]:
-        keys = [int(k) for k in keys]  # type: ignore[arg-type]
+        cols = [int(k) for k in keys]  # type: ignore[call-overload]
         rows = self.estimate_rows()
-        check_size(self.where, rows * len(keys) * 8 * 2.5 + 4 * HEAD_BYTES, limit,
-                   f"reading {len(keys)} columns of about {rows:,.0f} rows")
-        df = self._parse(keys)
+        check_size(self.where, rows * len(cols) * 8 * 2.5 + 4 * HEAD_BYTES, limit,
+                   f"reading {len(cols)} columns of about {rows:,.0f} rows")
+        df = self._parse(cols)
         out = []
-        for k in keys:
+        for k in cols:
             col = df[f"c{k}"]
             if col.dtype.kind not in "fiu":  # pragma: no cover - dtype=float64 is asked for
                 raise DataError(f"{self.where}: column {self.label(k)!r} is not numeric")
@@ -391,11 +392,11 @@ class TextSource:
         import pandas as pd
 
         lay = self.lay
-        kwargs: dict[str, Any] = dict(
-            sep=lay.delimiter if lay.delimiter is not None else r"\s+", decimal=lay.decimal,
-            skiprows=lay.skip, header=None, names=[f"c{i}" for i in range(lay.nfields)],
-            index_col=False, dtype=np.float64, engine="c", skip_blank_lines=True,
-        )
+        kwargs: dict[str, Any] = {
+            "sep": lay.delimiter if lay.delimiter is not None else r"\s+", "decimal": lay.decimal,
+            "skiprows": lay.skip, "header": None, "names": [f"c{i}" for i in range(lay.nfields)],
+            "index_col": False, "dtype": np.float64, "engine": "c", "skip_blank_lines": True,
+        }
         if len(keys) < lay.nfields:  # parsing fewer columns pays; asking for all of them costs
             kwargs["usecols"] = keys
         if lay.encoding.startswith("utf-16") or lay.encoding == "utf-8":
@@ -437,11 +438,8 @@ class TextSource:
 
     # -- the slow path: walk the lines to say where a problem is -----------------------------------
     def _lines(self) -> Any:
-        enc = self.lay.encoding
-        if enc == "utf-8":
-            enc = "utf-8-sig"
-        fh = open(self.path, encoding=enc, errors="replace", newline="")
-        return fh
+        enc = "utf-8-sig" if self.lay.encoding == "utf-8" else self.lay.encoding
+        return open(self.path, encoding=enc, errors="replace", newline="")  # the caller closes it
 
     def _data_rows(self) -> Any:
         """(line number, fields) for each data row, as pandas counts them."""
@@ -490,10 +488,10 @@ class TextSource:
         if bad:
             return f"line {lineno} {bad}"
         k = int(key)  # type: ignore[call-overload]
-        value = fields[k] if k < len(fields) else ""
-        if value == "":
+        text = fields[k] if k < len(fields) else ""
+        if text == "":
             return f"line {lineno}, column {self.label(key)!r} is empty"
-        return f"line {lineno}, column {self.label(key)!r} reads {value[:40]!r}, not a finite number"
+        return f"line {lineno}, column {self.label(key)!r} reads {text[:40]!r}, not a finite number"
 
 
 def read_table(path: str | Path, delimiter: str | None = None) -> tuple[list[str], np.ndarray, bool]:

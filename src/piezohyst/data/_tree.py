@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
-from ._columns import Key, ROLE_WORDS, ALIASES, check_size, flag, match_name
+from ._columns import ALIASES, ROLE_WORDS, Key, check_size, flag, match_name
 from ._dataset import DataError
 from ._units import normal_name
 
@@ -80,6 +81,11 @@ class Selection:
 
 
 # ------------------------------------------------------------------------------------------------
+def constant(a: np.ndarray) -> Callable[[], np.ndarray]:
+    """A reader of an array already in memory."""
+    return lambda: a
+
+
 def eager(arr: Any) -> Any:
     """A node from an in-memory numpy value (scipy.io.loadmat with simplify_cells, .npz)."""
     if isinstance(arr, dict):
@@ -94,7 +100,7 @@ def eager(arr: Any) -> Any:
         return Opaque("a logical value")
     if isinstance(arr, (int, float, np.integer, np.floating)):
         a = np.asarray(arr, dtype=np.float64)
-        return Leaf((), a.dtype, lambda a=a: a)
+        return Leaf((), a.dtype, constant(a))
     if isinstance(arr, np.ndarray):
         if arr.dtype.hasobject:
             return [eager(v) for v in arr.ravel().tolist()] if arr.ndim else eager(arr.item())
@@ -107,7 +113,7 @@ def eager(arr: Any) -> Any:
         if arr.dtype.kind == "b":
             return Opaque(f"logical values, shape {arr.shape}")
         if arr.dtype.kind in "fiu":
-            return Leaf(tuple(int(d) for d in arr.shape), arr.dtype, lambda a=arr: a)
+            return Leaf(tuple(int(d) for d in arr.shape), arr.dtype, constant(arr))
         return Opaque(f"values of type {arr.dtype}")
     name = type(arr).__name__
     if "sparse" in type(arr).__module__ or "sparse" in name.lower():
@@ -286,6 +292,8 @@ class TreeSource:
         if not isinstance(given, str):
             raise DataError(f"{self.where}: a {self.kind} is named by a string (a name or a path such as "
                             f"'x.signals.values') or a 0-based column number, got {given!r} ({flag(role)})")
+        sel: Selection | None
+        path_problem: str | None
         try:
             sel = self._resolve(parse_path(given))
         except PathError as exc:
@@ -352,7 +360,7 @@ class TreeSource:
         if isinstance(node, dict):
             # a Simulink structure of one signal, or a struct with one Data field: take its values
             sig = node.get("signals")
-            if self._single(sig):
+            if sig is not None and self._single(sig):
                 s = sig if isinstance(sig, dict) else sig[0]
                 if isinstance(s, dict) and isinstance(s.get("values"), Leaf):
                     return Selection(self._path_of(keys + (["signals"] if isinstance(sig, dict) else ["signals", 0])
