@@ -275,9 +275,16 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
                             f"(t = {t[i + 1]:.10g} s) after t = {t[i]:.10g} s")
         if not np.all(np.isfinite(steps)):
             raise DataError(f"{where}: the time column {labels['t']!r} spans more than a float can hold")
-        med = float(np.median(steps))
-        dev = np.abs(steps - med)
+        # uniform if every step is within the tolerance of the mean step (then of the median too);
+        # only a record that is not needs the median (a sort) to say how far off it is
+        mean = float(t[-1] - t[0]) / (t.size - 1)
+        dev = np.abs(steps - mean)
         j = int(np.argmax(dev))
+        med = mean
+        if float(dev[j]) > UNIFORM_TOLERANCE * mean:
+            med = float(np.median(steps))
+            dev = np.abs(steps - med)
+            j = int(np.argmax(dev))
         rel = float(dev[j]) / med
         target_dt = 1.0 / fs if fs is not None else med
         if fs is not None and abs(med * fs - 1.0) > UNIFORM_TOLERANCE:
@@ -309,9 +316,6 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
         out["t"] = np.arange(length) / fs
         meta["fs"] = fs
 
-    for a in out.values():
-        a.setflags(write=False)  # ours: Dataset need not copy it
-    try:
-        return Dataset(out["t"], out["u"], out["y"], meta)
-    except ValueError as exc:  # pragma: no cover - the checks above come first
-        raise DataError(f"{where}: {exc}") from None
+    if out["t"].size >= 2 and not np.all(np.isfinite(out["t"])):  # pragma: no cover - t0 + k dt from finite values
+        raise DataError(f"{where}: the time axis does not fit in a float")
+    return Dataset._checked(out["t"], out["u"], out["y"], meta)

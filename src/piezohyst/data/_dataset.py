@@ -53,6 +53,18 @@ class Dataset:
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "meta", dict(self.meta))
 
+    @classmethod
+    def _checked(cls, t: FloatArray, u: FloatArray, y: FloatArray, meta: dict[str, Any]) -> Dataset:
+        """A data set from arrays the readers have already checked (1-D float64 of one length, at
+        least 2, finite, ``t`` strictly increasing): no second pass over millions of samples."""
+        ds = object.__new__(cls)
+        for name, arr in (("t", t), ("u", u), ("y", y)):
+            arr = np.ascontiguousarray(arr, dtype=np.float64)
+            arr.setflags(write=False)
+            object.__setattr__(ds, name, arr)
+        object.__setattr__(ds, "meta", dict(meta))
+        return ds
+
     def __len__(self) -> int:
         return int(self.u.size)
 
