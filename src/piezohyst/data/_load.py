@@ -160,9 +160,11 @@ def load_dataset(
         Units that override the file's, e.g. ``{"y": "nm"}``, or factors to the canonical unit
         (``{"y": 10.0}``: 10 µm per unit of the file).
     resample : bool
-        A time column whose steps differ from the median step by more than 1 % is refused
-        (one median step would misstate the timing); with ``resample=True`` the record is
-        linearly interpolated onto a uniform grid instead and ``meta["resampled"]`` says so.
+        A time column with a step more than 1 % away from the mean step and from the median
+        step (a gap, a change of rate) is refused: one sample period would misstate the timing.
+        Smaller jitter, and times printed with limited digits, pass. With ``resample=True`` such a
+        record is linearly interpolated onto a uniform grid at the median step (or ``1/fs``)
+        instead, and ``meta["resampled"]`` says so.
     delimiter, decimal, encoding : str, optional
         Override what is sniffed from a text file.
     max_memory : int or str, optional
