@@ -1,0 +1,321 @@
+"""From a source of named columns (a text table, a MATLAB struct, a DataFrame) to a :class:`Dataset`.
+
+Every reader describes its file as a :class:`Source`: the names it can offer, how a name given
+by the user or guessed from the aliases maps to a column, a unit the file states, and how to read
+the columns. :func:`assemble` does the rest once for every format: picking t, u and y, units,
+NaN/inf with their line or sample, time checks (increasing, uniform or resampled, agreeing with
+``fs``) and the provenance in ``meta``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Hashable, Sequence
+from typing import Any, Protocol
+
+import numpy as np
+
+from ._dataset import DataError, Dataset
+from ._units import ROLES, UnitError, conversion, normal_name
+
+#: names (without their unit, lower case, separators as "_") that identify a column's role
+ALIASES: dict[str, tuple[str, ...]] = {
+    "t": ("t", "time", "times", "tout", "timestamp", "time_stamp", "elapsed_time", "x_value",
+          "zeit", "temps", "tiempo"),
+    "u": ("u", "v", "voltage", "volt", "volts", "vin", "v_in", "u_in", "input", "input_voltage",
+          "command", "drive", "drive_voltage", "piezo_voltage", "actuator_voltage",
+          "amplifier_voltage", "excitation", "spannung"),
+    "y": ("y", "x", "displacement", "disp", "position", "pos", "output", "y_out",
+          "output_displacement", "measured_displacement", "sensor", "extension", "stroke",
+          "deflection", "weg", "auslenkung"),
+    "r": ("r", "ref", "reference", "desired", "xd", "x_d", "y_d", "yd", "target", "setpoint",
+          "trajectory", "x", "y"),
+}
+
+ROLE_WORDS = {"t": "the time", "u": "the input voltage u", "y": "the output displacement y",
+              "r": "the reference"}
+#: how to name a column, in both spellings
+FLAGS = {"t": ("t_col=", "--t-col"), "u": ("u_col=", "--u-col"), "y": ("y_col=", "--y-col"),
+         "r": ("ref_col=", "--ref-col")}
+#: a time step further than this from the median step makes the time column non-uniform
+UNIFORM_TOLERANCE = 0.01
+
+Key = Hashable
+
+
+def flag(role: str) -> str:
+    """``"u_col= in Python, --u-col at the command line"``."""
+    py, cli = FLAGS[role]
+    return f"{py} in Python, {cli} at the command line"
+
+
+class Source(Protocol):
+    """What :func:`assemble` needs from a reader."""
+
+    where: str  # the file (or "DataFrame") for messages
+    meta: dict[str, Any]  # what the reader learnt (format, encoding, ...)
+
+    def listing(self) -> str:
+        """The columns or signals on offer, for messages."""
+
+    def find(self, given: Any, role: str) -> Key:
+        """The column the caller named (raise DataError if there is none)."""
+
+    def guess(self, role: str) -> Key | None:
+        """The column whose name says it plays ``role``, if exactly one does."""
+
+    def companion_time(self, key: Key) -> Key | None:
+        """A time vector that belongs with this signal (a struct's ``time`` field), if any."""
+
+    def label(self, key: Key) -> str:
+        """The column's name as the file writes it (units parsed from it)."""
+
+    def stated_unit(self, key: Key) -> str | None:
+        """A unit the file states apart from the name (a units row, a ``Unit`` field)."""
+
+    def unit_name(self, key: Key) -> str:
+        """The name a unit may be written in (the label, or a signal's ``Name``)."""
+
+    def read(self, keys: Sequence[Key], limit: int) -> list[np.ndarray]:
+        """The columns as 1-D float64 arrays (refusing matrices, text and sizes over ``limit``)."""
+
+    def locate(self, key: Key, row: int) -> str:
+        """Where row ``row`` of a column is in the file (``"line 57"``, ``"sample 57"``)."""
+
+    def explain(self, key: Key, row: int, value: float) -> str:
+        """Where row ``row`` of a column is and what is written there (for a bad ``value``)."""
+
+
+# ------------------------------------------------------------------------------------------------
+def match_name(given: str, names: Sequence[tuple[Key, Sequence[str]]]) -> list[Key]:
+    """Keys whose name matches ``given``: exactly, then ignoring case, then ignoring the unit."""
+    g = str(given).strip()
+    tests = (lambda n: n.strip() == g,
+             lambda n: n.strip().lower() == g.lower(),
+             lambda n: normal_name(n) == normal_name(g) and normal_name(g) != "")
+    for test in tests:
+        hits = list(dict.fromkeys(k for k, labels in names for n in labels if test(n)))
+        if hits:
+            return hits
+    return []
+
+
+def guess_by_alias(names: Sequence[tuple[Key, Sequence[str]]], role: str, where: str,
+                   describe: Any = str) -> Key | None:
+    """The one key whose name is an alias of ``role`` (first alias wins); None if none is."""
+    normed = [(k, {normal_name(n) for n in labels}) for k, labels in names]
+    for alias in ALIASES[role]:
+        hits = list(dict.fromkeys(k for k, ns in normed if alias in ns))
+        if len(hits) == 1:
+            return hits[0]
+        if len(hits) > 1:
+            which = ", ".join(repr(describe(h)) for h in hits[:6])
+            raise DataError(f"{where}: several columns could be {ROLE_WORDS[role]} ({which}); "
+                            f"name one ({flag(role)})")
+    return None
+
+
+def default_limit() -> int:
+    """The most memory a reader may allocate: ``PIEZOHYST_MAX_MEMORY`` (bytes; K/M/G suffixes), else half the RAM."""
+    env = os.environ.get("PIEZOHYST_MAX_MEMORY")
+    if env:
+        return parse_size(env, "PIEZOHYST_MAX_MEMORY")
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        if total > 0:
+            return int(total // 2)
+    except (AttributeError, ValueError, OSError):
+        pass
+    return 4 << 30
+
+
+def parse_size(text: Any, what: str) -> int:
+    """``"2G"`` -> 2147483648; plain numbers are bytes."""
+    s = str(text).strip().upper().removesuffix("B").removesuffix("I")
+    mult = 1
+    for suffix, m in (("K", 1 << 10), ("M", 1 << 20), ("G", 1 << 30), ("T", 1 << 40)):
+        if s.endswith(suffix):
+            s, mult = s[:-1], m
+            break
+    try:
+        v = float(s) * mult
+    except ValueError:
+        raise DataError(f"{what} must be a size in bytes such as 2000000000 or 2G, got {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise DataError(f"{what} must be a positive size in bytes, got {text!r}")
+    return int(v)
+
+
+def human(n: float) -> str:
+    """Bytes as ``"1.5 GiB"``."""
+    for unit, size in (("TiB", 1 << 40), ("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n >= size:
+            return f"{n / size:.3g} {unit}"
+    return f"{int(n)} bytes"
+
+
+def check_size(where: str, need: float, limit: int, what: str) -> None:
+    """Refuse before allocating ``need`` bytes when that is over ``limit``."""
+    if need > limit:
+        raise DataError(f"{where}: {what} needs about {human(need)} of memory, over the limit of "
+                        f"{human(limit)}; raise it with max_memory= in Python or the "
+                        f"PIEZOHYST_MAX_MEMORY environment variable (e.g. PIEZOHYST_MAX_MEMORY=16G)")
+
+
+def check_fs(fs: Any, where: str) -> float:
+    """``fs`` as a positive finite float (DataError otherwise)."""
+    if isinstance(fs, bool) or not isinstance(fs, (int, float, np.integer, np.floating)):
+        raise DataError(f"{where}: the sample rate must be a number in Hz (fs= in Python, --fs at the "
+                        f"command line), got {fs!r}")
+    v = float(fs)
+    if not math.isfinite(v) or v <= 0:
+        raise DataError(f"{where}: the sample rate must be a positive number of Hz (fs= in Python, --fs "
+                        f"at the command line), got {fs}")
+    return v
+
+
+def check_units_arg(units: Any, where: str) -> dict[str, Any]:
+    if units is None:
+        return {}
+    if not isinstance(units, dict):
+        raise DataError(f"{where}: units must be a dict such as {{'y': 'nm'}}, got {type(units).__name__}")
+    bad = [k for k in units if k not in ("t", "u", "y")]
+    if bad:
+        raise DataError(f"{where}: units keys must be 't', 'u' or 'y', got {bad}")
+    return dict(units)
+
+
+# ------------------------------------------------------------------------------------------------
+def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = None,
+             fs: Any = None, units: Any = None, resample: bool = False,
+             max_memory: int | None = None, extra_meta: dict[str, Any] | None = None) -> Dataset:
+    """Pick t, u and y from ``src``, convert, check and return the :class:`Dataset`."""
+    where = src.where
+    units = check_units_arg(units, where)
+    if fs is not None:
+        fs = check_fs(fs, where)
+    limit = default_limit() if max_memory is None else int(max_memory)
+
+    keys: dict[str, Key | None] = {}
+    for role, given in (("u", u_col), ("y", y_col)):
+        k = src.find(given, role) if given is not None else src.guess(role)
+        if k is None:
+            raise DataError(f"{where}: cannot tell which column is {ROLE_WORDS[role]}; name it "
+                            f"({flag(role)}); {src.listing()}")
+        keys[role] = k
+    if keys["u"] == keys["y"]:
+        raise DataError(f"{where}: u and y are both {src.label(keys['u'])!r}; name two different columns "
+                        f"(u_col=, y_col= in Python, --u-col, --y-col at the command line)")
+    kt: Key | None
+    if t_col is not None:
+        kt = src.find(t_col, "t")
+    else:
+        kt = src.guess("t")
+        if kt is None:
+            ct_u, ct_y = src.companion_time(keys["u"]), src.companion_time(keys["y"])
+            if ct_u is not None and ct_y is not None and ct_u != ct_y:
+                # two structs (Simulink To Workspace blocks u and y) each with its own time
+                a, b = src.read([ct_u, ct_y], limit)
+                if not np.array_equal(a, b):
+                    raise DataError(f"{where}: u and y come with different time vectors ({src.label(ct_u)!r} and "
+                                    f"{src.label(ct_y)!r}); name the time column ({flag('t')})")
+            kt = ct_u if ct_u is not None else ct_y
+    if kt is not None and kt in (keys["u"], keys["y"]):
+        raise DataError(f"{where}: the time column {src.label(kt)!r} is also u or y; name the columns "
+                        f"({flag('t')})")
+    keys["t"] = kt
+
+    roles = [r for r in ("t", "u", "y") if keys[r] is not None]
+    arrays = dict(zip(roles, src.read([keys[r] for r in roles], limit)))
+    labels = {r: src.label(keys[r]) for r in roles}
+    n = {r: arrays[r].size for r in roles}
+    if len(set(n.values())) > 1:
+        sizes = ", ".join(f"{labels[r]!r} ({ROLE_WORDS[r]}) has {n[r]}" for r in roles)
+        raise DataError(f"{where}: the columns differ in length: {sizes} samples")
+    length = n["u"]
+    if length < 2:
+        raise DataError(f"{where}: needs at least 2 samples, found {length}")
+
+    convs = {}
+    out: dict[str, np.ndarray] = {}
+    for r in roles:
+        a = arrays[r]
+        bad = ~np.isfinite(a)
+        if bad.any():
+            i = int(np.argmax(bad))
+            count = int(bad.sum())
+            more = f" ({count} values in {labels[r]!r} are not finite numbers)" if count > 1 else ""
+            raise DataError(f"{where}: {src.explain(keys[r], i, float(a[i]))}{more}")
+        try:
+            convs[r] = conversion(r, labels[r], stated=src.stated_unit(keys[r]), given=units.get(r),
+                                  name=src.unit_name(keys[r]))
+        except UnitError as exc:
+            raise DataError(f"{where}: {exc}; declare the unit (units={{'{r}': 'um'}} in Python) or "
+                            f"write a known unit in the name, e.g. 'Displacement [um]'") from None
+        v = convs[r].apply(a)
+        if not np.all(np.isfinite(v)):
+            i = int(np.argmax(~np.isfinite(v)))
+            raise DataError(f"{where}: at {src.locate(keys[r], i)}, {a[i]:g} {convs[r].unit} is too large to "
+                            f"convert to {ROLES[r][1]}")
+        out[r] = v
+
+    meta: dict[str, Any] = dict(extra_meta or {})
+    meta.update(src.meta)
+    meta["columns"] = {r: (labels[r] if keys[r] is not None else None) for r in ("t", "u", "y")}
+    meta["units"] = {r: convs[r].to_meta() for r in roles}
+
+    if "t" in out:
+        t = out["t"]
+        with np.errstate(over="ignore", invalid="ignore"):
+            steps = np.diff(t)
+        if not np.all(steps > 0):
+            i = int(np.argmax(~(steps > 0)))
+            raise DataError(f"{where}: time must increase from sample to sample, but at {src.locate(keys['t'], i + 1)} "
+                            f"(t = {t[i + 1]:.10g} s) after t = {t[i]:.10g} s")
+        if not np.all(np.isfinite(steps)):
+            raise DataError(f"{where}: the time column {labels['t']!r} spans more than a float can hold")
+        # uniform if every step is within the tolerance of the mean step (then of the median too);
+        # only a record that is not needs the median (a sort) to say how far off it is
+        mean = float(t[-1] - t[0]) / (t.size - 1)
+        dev = np.abs(steps - mean)
+        j = int(np.argmax(dev))
+        med = mean
+        if float(dev[j]) > UNIFORM_TOLERANCE * mean:
+            med = float(np.median(steps))
+            dev = np.abs(steps - med)
+            j = int(np.argmax(dev))
+        rel = float(dev[j]) / med
+        target_dt = 1.0 / fs if fs is not None else med
+        if fs is not None and abs(med * fs - 1.0) > UNIFORM_TOLERANCE:
+            raise DataError(f"{where}: the sample rate {fs:g} Hz disagrees with the time column "
+                            f"{labels['t']!r} (1 / median step = {1.0 / med:.6g} Hz); give one of them "
+                            f"(fs= in Python, --fs at the command line) or resample")
+        if rel > UNIFORM_TOLERANCE:
+            if not resample:
+                raise DataError(
+                    f"{where}: the time column {labels['t']!r} is not uniformly sampled: the step to "
+                    f"{src.locate(keys['t'], j + 1)} is {steps[j]:.6g} s against a median step of {med:.6g} s "
+                    f"({100 * rel:.3g} % off; {100 * UNIFORM_TOLERANCE:g} % allowed); resample it onto a "
+                    f"uniform grid (resample=True in Python, --resample at the command line) or fix the file")
+            span = float(t[-1] - t[0])
+            count = math.floor(span / target_dt * (1 + 1e-12)) + 1
+            check_size(where, 8.0 * 3 * count, limit, f"resampling to {count} samples")
+            grid = t[0] + np.arange(count) * target_dt
+            for r in ("u", "y"):
+                out[r] = np.interp(grid, t, out[r])
+            meta["resampled"] = {"method": "linear interpolation", "dt": target_dt,
+                                 "samples_before": int(t.size), "samples_after": count,
+                                 "largest_step_deviation": rel}
+            out["t"] = grid
+            t = grid
+    else:
+        if fs is None:
+            raise DataError(f"{where}: no time column; give the sample rate (fs= in Python, --fs at the command "
+                            f"line) or name the time column ({flag('t')})")
+        out["t"] = np.arange(length) / fs
+        meta["fs"] = fs
+
+    if out["t"].size >= 2 and not np.all(np.isfinite(out["t"])):  # pragma: no cover - t0 + k dt from finite values
+        raise DataError(f"{where}: the time axis does not fit in a float")
+    return Dataset._checked(out["t"], out["u"], out["y"], meta)

@@ -1,0 +1,593 @@
+"""Lab files as they come: every kind loads to the same data as the canonical CSV, or is refused in one line.
+
+The reference is ``save_dataset``'s CSV of one record (t in s, u in V, y in µm). Each test writes
+the same record the way another program would (units, delimiters, encodings, MATLAB structs,
+DataFrames) and checks that ``load_dataset``/``Dataset.from_dataframe`` return the same t, u, y.
+"""
+
+from __future__ import annotations
+
+import codecs
+import importlib.util
+import json
+import os
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import scipy.io as sio
+
+import piezohyst as ph
+from piezohyst.data import DataError, data_dir, read_table
+
+from ._labfiles import dspace, savemat73, simulink_structure_with_time, v5_struct_array
+
+N = 40
+T = np.round(np.arange(N) * 1e-3, 10)
+U = np.round(2.5 + 2.5 * np.sin(2 * np.pi * np.arange(N) / 20), 6)  # V
+Y = np.round(0.8 * U + 0.05 * np.cos(2 * np.pi * np.arange(N) / 20), 6)  # µm
+
+
+@pytest.fixture(scope="module")
+def ref(tmp_path_factory):
+    """The canonical CSV of the record, loaded."""
+    p = tmp_path_factory.mktemp("ref") / "ref.csv"
+    ph.save_dataset(p, ph.Dataset(T, U, Y, {"note": "reference"}))
+    return ph.load_dataset(p)
+
+
+def same(ds, ref, rtol=1e-12):
+    np.testing.assert_allclose(ds.t, ref.t, rtol=rtol, atol=1e-15)
+    np.testing.assert_allclose(ds.u, ref.u, rtol=rtol, atol=1e-15)
+    np.testing.assert_allclose(ds.y, ref.y, rtol=rtol, atol=1e-15)
+
+
+def lines(cols, fmt, sep, decimal="."):
+    out = []
+    for row in zip(*cols):
+        cells = [f % v for f, v in zip(fmt, row)]
+        if decimal != ".":
+            cells = [c.replace(".", decimal) for c in cells]
+        out.append(sep.join(cells))
+    return out
+
+
+# ---- text tables -------------------------------------------------------------------------------
+def test_canonical_csv_round_trip_is_exact(ref):
+    assert np.array_equal(ref.t, T) and np.array_equal(ref.u, U) and np.array_equal(ref.y, Y)
+    assert ref.meta["note"] == "reference"  # the meta comment is read back
+    assert ref.meta["units"]["y"]["unit"] == "um" and ref.meta["units"]["y"]["factor"] == 1.0
+
+
+def test_semicolons_decimal_commas_and_units_in_the_header(tmp_path, ref):
+    # the line of issue 15: a German lab export
+    p = tmp_path / "lab.csv"
+    body = lines([T, U, Y * 1000], ["%.3f", "%.6f", "%.3f"], ";", decimal=",")
+    p.write_text("Time [s];Voltage [V];Displacement [nm]\n" + "\n".join(body) + "\n", encoding="utf-8")
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["delimiter"] == "semicolon" and ds.meta["decimal"] == ","
+    assert ds.meta["units"]["y"] == {"column": "Displacement [nm]", "unit": "nm", "to": "um", "factor": 0.001}
+
+
+def test_cp1252_export_with_micro_sign_and_milliseconds(tmp_path, ref):
+    p = tmp_path / "win.txt"
+    body = lines([T * 1000, U * 1000, Y], ["%.3f", "%.3f", "%.6f"], "\t", decimal=",")
+    p.write_bytes(("Zeit (ms)\tSpannung (mV)\tWeg [µm]\r\n" + "\r\n".join(body) + "\r\n").encode("cp1252"))
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["encoding"] == "cp1252"
+    assert ds.meta["units"]["t"]["factor"] == 0.001 and ds.meta["units"]["u"]["unit"] == "mV"
+
+
+def test_latin1_bytes_that_cp1252_cannot_decode(tmp_path, ref):
+    p = tmp_path / "latin.csv"
+    body = lines([T, U, Y], ["%.3f", "%.6f", "%.6f"], ",")
+    # 0x81 is undefined in cp1252; a latin-1 export of a comment may hold it
+    p.write_bytes(b"# Pr\xfcfstand \x81\n" + b"t_s,u_V,y_um\n" + "\n".join(body).encode("ascii") + b"\n")
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["encoding"] == "latin-1"
+
+
+@pytest.mark.parametrize("codec, bom", [("utf-8", codecs.BOM_UTF8), ("utf-16-le", codecs.BOM_UTF16_LE),
+                                        ("utf-16-be", codecs.BOM_UTF16_BE)])
+def test_byte_order_marks(tmp_path, ref, codec, bom):
+    p = tmp_path / "bom.csv"
+    body = lines([T, U, Y], ["%.3f", "%.6f", "%.6f"], "\t")
+    p.write_bytes(bom + ("time\tvoltage\tdisplacement\n" + "\n".join(body) + "\n").encode(codec))
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["columns"] == {"t": "time", "u": "voltage", "y": "displacement"}
+
+
+def test_pandas_to_csv_with_its_unnamed_index_column(tmp_path, ref):
+    p = tmp_path / "frame.csv"
+    pd.DataFrame({"t_s": T, "u_mV": U * 1000, "x_mm": Y / 1000}).to_csv(p)
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["index_column_dropped"] is True
+    # column numbers count the columns after the dropped index, as pandas' index_col=0 does
+    same(ph.load_dataset(p, t_col=0, u_col=1, y_col=2), ref)
+
+
+def test_comment_lines_anywhere_and_blank_lines(tmp_path, ref):
+    p = tmp_path / "c.csv"
+    body = lines([T, U, Y], ["%.3f", "%.6f", "%.6f"], ",")
+    body.insert(10, "# operator paused the logger here")
+    body.insert(20, "")
+    p.write_text("# run 7\n# stage B\nt,u,y\n" + "\n".join(body) + "\n")
+    same(ph.load_dataset(p), ref)
+
+
+def test_headerless_whitespace_columns_by_index_with_a_sample_rate(tmp_path, ref):
+    p = tmp_path / "raw.dat"
+    body = lines([U, np.zeros(N), Y], ["%14.6e", "%14.6e", "%14.6e"], "  ")  # MATLAB save -ascii style
+    p.write_text("\n".join(body) + "\n")
+    same(ph.load_dataset(p, u_col=0, y_col=2, fs=1000), ref)
+    same(ph.load_dataset(p, u_col="0", y_col="2", fs=1000.0), ref)  # the CLI passes strings too
+
+
+def test_units_on_their_own_line_under_the_header(tmp_path, ref):
+    p = tmp_path / "units.csv"
+    body = lines([T * 1e6, U / 1000, Y / 1e6], ["%.1f", "%.9f", "%.12f"], ";")
+    p.write_text("Time;Voltage;Position\nus;kV;m\n" + "\n".join(body) + "\n")
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["units"]["y"]["unit"] == "m" and ds.meta["units"]["y"]["factor"] == 1e6
+
+
+def test_preamble_before_the_table_and_a_trailing_delimiter(tmp_path, ref):
+    # LabVIEW-measurement-like: key/value lines, an end-of-header mark, then the table
+    p = tmp_path / "run.lvm"
+    body = [ln + "\t" for ln in lines([T, U, Y], ["%.6f", "%.6f", "%.6f"], "\t")]
+    p.write_text("LabVIEW Measurement\t\nWriter_Version\t2\nSeparator\tTab\n***End_of_Header***\t\n"
+                 "X_Value\tVoltage\tDisplacement\tComment\n" + "\n".join(body) + "\n")
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["skipped_lines"] == 4 and ds.meta["columns"]["t"] == "X_Value"
+
+
+def test_columns_by_name_or_index_among_extra_columns(tmp_path, ref):
+    p = tmp_path / "wide.csv"
+    other = np.arange(N, dtype=float)
+    body = lines([other, T, U, other, Y], ["%.0f", "%.3f", "%.6f", "%.0f", "%.6f"], ",")
+    p.write_text("sample,Time (s),Drive [V],temperature,Sensor A [um]\n" + "\n".join(body) + "\n")
+    same(ph.load_dataset(p, t_col="time", u_col="Drive", y_col=4), ref)
+    same(ph.load_dataset(p, t_col="Time (s)", u_col="drive [v]", y_col="Sensor A"), ref)
+    with pytest.raises(DataError, match=r"unknown column 'force'.*the columns are \['sample', 'Time \(s\)'"):
+        ph.load_dataset(p, u_col="force", y_col=4)
+    with pytest.raises(DataError, match=r"column 9 does not exist"):
+        ph.load_dataset(p, u_col=9, y_col=4)
+
+
+# ---- MATLAB, NumPy, HDF5 -----------------------------------------------------------------------
+def _write_mat(path, variables, v73):
+    if v73:
+        savemat73(path, variables)
+    else:
+        sio.savemat(path, variables)
+
+
+@pytest.mark.parametrize("v73", [False, True], ids=["v5", "v7.3"])
+def test_mat_plain_variables(tmp_path, ref, v73):
+    p = tmp_path / "plain.mat"
+    _write_mat(p, {"t": T[:, None], "u": U, "y": Y[:, None], "note": "bench 3"}, v73)
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["format"] == ("mat-v7.3" if v73 else "mat-v5")
+
+
+@pytest.mark.parametrize("v73", [False, True], ids=["v5", "v7.3"])
+def test_mat_simulink_structure_with_time(tmp_path, ref, v73):
+    p = tmp_path / "sim.mat"
+    _write_mat(p, {"logsout": simulink_structure_with_time(T, [("Vin", U), ("x [nm]", Y * 1000)], v73=v73)}, v73)
+    by_path = ph.load_dataset(p, u_col="logsout.signals[0].values", y_col="logsout.signals(2).values")
+    same(by_path, ref)  # time comes with the struct; the label's unit converts y
+    assert by_path.meta["columns"]["t"] == "logsout.time"
+    same(ph.load_dataset(p), ref)  # labels "Vin" and "x [nm]" are found by name
+
+
+@pytest.mark.parametrize("v73", [False, True], ids=["v5", "v7.3"])
+def test_mat_one_simulink_structure_per_signal(tmp_path, ref, v73):
+    # To Workspace blocks named u and y, each "Structure With Time"
+    p = tmp_path / "tw.mat"
+    _write_mat(p, {"u": simulink_structure_with_time(T, [("", U)], v73=v73),
+                   "y": simulink_structure_with_time(T, [("", Y)], v73=v73)}, v73)
+    same(ph.load_dataset(p), ref)
+    same(ph.load_dataset(p, u_col="u", y_col="y.signals.values"), ref)
+
+
+@pytest.mark.parametrize("v73", [False, True], ids=["v5", "v7.3"])
+def test_mat_dspace_controldesk_recording(tmp_path, ref, v73):
+    p = tmp_path / "rec.mat"
+    rec = dspace(T, [("Model Root/amp/Out1", U * 1000, "mV"), ("Model Root/sensor/Displacement", Y * 1000, "nm"),
+                     ("Model Root/sensor/temperature", np.full(N, 21.0), "degC")], v73=v73)
+    _write_mat(p, {"rec_0007": rec}, v73)
+    ds = ph.load_dataset(p, u_col="rec_0007.Y(1).Data")  # y found by its Name, t from X
+    same(ds, ref)
+    assert ds.meta["units"]["u"]["unit"] == "mV" and ds.meta["columns"]["t"].endswith("X.Data") \
+        or ds.meta["columns"]["t"].endswith("X[0].Data")
+    same(ph.load_dataset(p, u_col="Out1", y_col="Model Root/sensor/Displacement"), ref)
+
+
+@pytest.mark.parametrize("v73", [False, True], ids=["v5", "v7.3"])
+def test_one_matrix_columns_by_index_or_slice(tmp_path, ref, v73):
+    p = tmp_path / "m.mat"
+    _write_mat(p, {"data": np.column_stack([T, U, Y])}, v73)
+    same(ph.load_dataset(p, t_col=0, u_col=1, y_col=2), ref)
+    same(ph.load_dataset(p, t_col="data(:, 1)", u_col="data[:, 1]", y_col="data[:,2]"), ref)
+
+
+def test_npz_from_save_dataset_and_by_hand(tmp_path, ref):
+    p = ph.save_dataset(tmp_path / "d.npz", ref)
+    back = ph.load_dataset(p)
+    assert back.sha256 == ref.sha256 and back.meta["note"] == "reference"
+    q = tmp_path / "hand.npz"
+    np.savez(q, time=T, drive_voltage=U, y_nm=Y * 1000)
+    same(ph.load_dataset(q), ref)
+
+
+def test_npy_matrix(tmp_path, ref):
+    p = tmp_path / "rows.npy"
+    np.save(p, np.column_stack([T, U, Y]))
+    same(ph.load_dataset(p, t_col=0, u_col=1, y_col=2), ref)
+
+
+def test_plain_hdf5_groups(tmp_path, ref):
+    import h5py
+
+    p = tmp_path / "run.h5"
+    with h5py.File(p, "w") as f:
+        g = f.create_group("run1")
+        g["time"], g["voltage"], g["position_um"] = T, U, Y
+        g["voltage"].attrs["unit"] = "V"
+    same(ph.load_dataset(p), ref)
+    same(ph.load_dataset(p, t_col="run1/time", u_col="run1/voltage", y_col="run1.position_um"), ref)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("pyarrow") is None, reason="pyarrow not installed")
+def test_parquet(tmp_path, ref):
+    p = tmp_path / "d.parquet"
+    pd.DataFrame({"Time [ms]": T * 1000, "Voltage [V]": U, "Displacement [nm]": Y * 1000}).to_parquet(p)
+    same(ph.load_dataset(p), ref)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("openpyxl") is None, reason="openpyxl not installed")
+def test_xlsx_with_a_units_row(tmp_path, ref):
+    p = tmp_path / "d.xlsx"
+    df = pd.DataFrame({"Time": ["s"] + list(T), "Voltage": ["V"] + list(U), "Displacement": ["mm"] + list(Y / 1000)})
+    df.to_excel(p, index=False)
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["units"]["y"]["unit"] == "mm"
+
+
+# ---- DataFrames ----------------------------------------------------------------------------------
+def test_from_dataframe_and_back(ref):
+    df = pd.DataFrame({"Time [ms]": T * 1000, "Voltage (mV)": U * 1000, "Displacement [nm]": Y * 1000})
+    same(ph.Dataset.from_dataframe(df), ref)
+    same(ph.Dataset.from_dataframe(df, t_col="Time [ms]", u_col=1, y_col="Displacement"), ref)
+    out = ref.to_dataframe()
+    assert list(out.columns) == ["t", "u", "y"] and out.attrs["units"] == {"t": "s", "u": "V", "y": "um"}
+    back = ph.Dataset.from_dataframe(out)
+    assert back.sha256 == ref.sha256
+    # units in attrs are honoured: the same numbers declared in nm become µm / 1000
+    out.attrs["units"] = {"t": "s", "u": "V", "y": "nm"}
+    np.testing.assert_allclose(ph.Dataset.from_dataframe(out).y, ref.y / 1000, rtol=1e-15)
+
+
+def test_from_dataframe_uses_a_time_index():
+    df = pd.DataFrame({"u": U, "y": Y}, index=pd.to_timedelta(T, unit="s"))
+    ds = ph.Dataset.from_dataframe(df)
+    np.testing.assert_allclose(ds.t, T, atol=1e-12)
+    df2 = pd.DataFrame({"u": U, "y": Y}, index=pd.Index(T, name="time"))
+    np.testing.assert_array_equal(ph.Dataset.from_dataframe(df2).t, T)
+    with pytest.raises(DataError, match=r"DataFrame: no time column; give the sample rate \(fs= in Python, --fs"):
+        ph.Dataset.from_dataframe(pd.DataFrame({"u": U, "y": Y}))
+    np.testing.assert_allclose(ph.Dataset.from_dataframe(pd.DataFrame({"u": U, "y": Y}), fs=1000).t, T, atol=1e-15)
+
+
+def test_from_dataframe_refusals():
+    with pytest.raises(DataError, match=r"row 3 \(index 3\), column 'y' holds 'nan'"):
+        ph.Dataset.from_dataframe(pd.DataFrame({"t": T, "u": U, "y": np.where(np.arange(N) == 3, np.nan, Y)}))
+    with pytest.raises(DataError, match=r"row 2 .*column 'u' holds 'oops', not a number"):
+        ph.Dataset.from_dataframe(pd.DataFrame({"t": T, "u": [0.0, 1.0, "oops"] + list(U[3:]), "y": Y}))
+    with pytest.raises(DataError, match="expected a pandas DataFrame"):
+        ph.Dataset.from_dataframe({"t": T})
+
+
+# ---- what is refused (issue 13): no silent wrong results -----------------------------------------
+@pytest.mark.parametrize("shape", [(N, 2), (2, N)])
+@pytest.mark.parametrize("kind", ["npz", "v5", "v7.3"])
+def test_a_matrix_is_never_flattened(tmp_path, kind, shape):
+    m = np.arange(2 * N, dtype=float).reshape(shape)
+    p = tmp_path / ("d.npz" if kind == "npz" else "d.mat")
+    if kind == "npz":
+        np.savez(p, u=m, y=Y)
+    else:
+        _write_mat(p, {"u": m, "y": Y}, kind == "v7.3")
+    with pytest.raises(DataError, match=rf"d\.(npz|mat): 'u' has shape {shape[0]}x{shape[1]}: it holds 2 signals, "
+                                        r"not one, and is not flattened; pick one, e.g. 'u\["):
+        ph.load_dataset(p, fs=1000)
+
+
+@pytest.mark.parametrize("shape", [(1, N), (N, 1), (N,)])
+def test_row_and_column_vectors_are_signals(tmp_path, ref, shape):
+    p = tmp_path / "v.npz"
+    np.savez(p, t=T.reshape(shape), u=U.reshape(shape), y=Y.reshape(shape))
+    same(ph.load_dataset(p), ref)
+
+
+def test_non_uniform_time_is_refused_or_resampled(tmp_path):
+    t = np.arange(N) * 1e-3
+    t[25:] += 2e-3  # two samples lost
+    p = tmp_path / "gap.csv"
+    ph.save_dataset(p, ph.Dataset(t, U, Y))
+    # two comment lines and the header: sample 25 is on line 29
+    with pytest.raises(DataError, match=r"gap\.csv: the time column 't_s' is not uniformly sampled: the step to "
+                                        r"line 29 is 0\.003 s against a median step of 0\.001 s \(200 % off; 1 % "
+                                        r"allowed\); resample it .*resample=True in Python, --resample"):
+        ph.load_dataset(p)
+    ds = ph.load_dataset(p, resample=True)
+    assert len(ds) == N + 2 and ds.is_uniform
+    assert ds.meta["resampled"]["samples_before"] == N and ds.meta["resampled"]["largest_step_deviation"] == pytest.approx(2)
+    np.testing.assert_allclose(ds.u[:25], U[:25], atol=1e-12)  # untouched before the gap
+    # jitter within 1 % of the step is a uniform record
+    jitter = np.arange(N) * 1e-3 + np.where(np.arange(N) % 2, 4e-6, 0.0)
+    q = tmp_path / "jitter.csv"
+    ph.save_dataset(q, ph.Dataset(jitter, U, Y))
+    assert "resampled" not in ph.load_dataset(q).meta
+
+
+def test_sample_rate_that_disagrees_with_the_time_column(tmp_path, ref):
+    p = tmp_path / "t.csv"
+    ph.save_dataset(p, ref)
+    with pytest.raises(DataError, match=r"the sample rate 2000 Hz disagrees with the time column 't_s' "
+                                        r"\(1 / median step = 1000 Hz\).*--fs"):
+        ph.load_dataset(p, fs=2000)
+    same(ph.load_dataset(p, fs=1000), ref)
+
+
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        ("", r"the file is empty"),
+        ("# only a comment\n\n", r"no data \(the file is empty or holds only comments\)"),
+        ("t,u,y\n", r"only one line \('t,u,y'\) and no data rows"),
+        ("t,u,y\n0,1,2\n", r"needs at least 2 samples, found 1"),
+        ("t,u,y\n0,1,2\n0.1,2\n0.2,3,4\n0.3,4,5\n", r"line 3 has 2 fields, expected 3"),
+        ("t,u,y\n0,1,2\n0.1,2,3,9\n0.2,3,4\n0.3,4,5\n", r"line 3 has 4 fields, expected 3"),
+        ("t,u,y\n0,1,2\n0.1,abc,3\n0.2,3,4\n0.3,4,5\n", r"line 3, column 'u': 'abc' is not a number"),
+        ("t,u,y\n0,1,2\n0.1,2,3\n0.2,nan,4\n", r"line 4, column 'u' reads 'nan', not a finite number"),
+        ("t,u,y\n0,1,2\n0.1,2,3\n0.2,3,inf\n", r"line 4, column 'y' reads 'inf', not a finite number"),
+        ("t,u,y\n0,1,2\n0.1,,3\n0.2,3,4\n", r"line 3, column 'u' is empty"),
+        ("t,u,y\n0,1,2\n0.1,2,3\n0.1,3,4\n", r"time must increase from sample to sample, but at line 4"),
+        ("t,u,y [V]\n0,1,2\n0.1,2,3\n", r"'y \[V\]' is in V, a voltage, but it is read as the output displacement"),
+        ("t,u [inch],y\n0,1,2\n0.1,2,3\n", r"the unit 'inch' of 'u \[inch\]'.* is not one piezohyst knows"),
+        ("a,b,c\n0,1,2\n0.1,2,3\n", (r"cannot tell which column is the input voltage u; name it \(u_col= in Python, "
+                                     r"--u-col at the command line\); the columns are \['a', 'b', 'c'\]")),
+        ("0 1 2\n1 2 3\n", r"cannot tell which column is the input voltage u.*no header line"),
+        ("t,v,x,u\n0,1,2,3\n0.1,2,3,4\n", None),  # u wins over v by its first alias: loads
+    ],
+)
+def test_malformed_text_one_line_naming_the_file(tmp_path, content, match):
+    p = tmp_path / "bad.csv"
+    p.write_text(content)
+    if match is None:
+        assert ph.load_dataset(p).meta["columns"]["u"] == "u"
+        return
+    with pytest.raises(DataError, match=match) as exc:
+        ph.load_dataset(p)
+    msg = str(exc.value)
+    assert msg.startswith(f"{p}: ") and "\n" not in msg
+
+
+def test_nan_in_a_mat_file_names_the_variable_and_sample(tmp_path):
+    p = tmp_path / "nan.mat"
+    y = Y.copy()
+    y[7] = np.inf
+    sio.savemat(p, {"u": U, "y": y})
+    with pytest.raises(DataError, match=r"nan\.mat: sample 7 of 'y' is inf, not a finite number"):
+        ph.load_dataset(p, fs=1000)
+
+
+def test_declared_units_override_the_file(tmp_path, ref):
+    p = tmp_path / "v.csv"
+    body = lines([T, U, Y / 10], ["%.3f", "%.6f", "%.7f"], ",")
+    p.write_text("t,u,y [V]\n" + "\n".join(body) + "\n")  # a sensor at 10 µm per volt
+    same(ph.load_dataset(p, units={"y": 10.0}), ref)
+    with pytest.raises(DataError, match="units keys must be 't', 'u' or 'y'"):
+        ph.load_dataset(p, units={"x": "nm"})
+
+
+def test_too_large_for_the_memory_limit(tmp_path, monkeypatch, ref):
+    p = tmp_path / "big.csv"
+    ph.save_dataset(p, ref)
+    with pytest.raises(DataError, match=r"big\.csv: reading 3 columns of about \d+ rows needs about .* of memory, "
+                                        r"over the limit of 1000 bytes; raise it with max_memory= in Python or the "
+                                        r"PIEZOHYST_MAX_MEMORY environment variable"):
+        ph.load_dataset(p, max_memory=1000)
+    monkeypatch.setenv("PIEZOHYST_MAX_MEMORY", "1K")
+    with pytest.raises(DataError, match="over the limit of 1 KiB"):
+        ph.load_dataset(p)
+    q = tmp_path / "big.npz"
+    np.savez(q, u=U, y=Y)
+    with pytest.raises(DataError, match=r"big\.npz: reading 2 arrays of up to 40 values needs about"):
+        ph.load_dataset(q, fs=1)
+    monkeypatch.setenv("PIEZOHYST_MAX_MEMORY", "lots")
+    with pytest.raises(DataError, match="PIEZOHYST_MAX_MEMORY must be a size in bytes"):
+        ph.load_dataset(p)
+
+
+def _sparse(path, size):
+    try:
+        os.truncate(path, size)
+    except OSError:  # pragma: no cover - a file system without sparse files
+        pytest.skip("cannot make a sparse file here")
+
+
+def test_a_terabyte_file_is_refused_before_reading_it(tmp_path):
+    # a real (sparse) 1 TiB file, default limit: refused from its size, in well under a second
+    p = tmp_path / "huge.csv"
+    p.write_text("t,u,y\n" + "".join(f"{i * 1e-3:.6f},{np.sin(i):.6f},{np.cos(i):.6f}\n" for i in range(3000)))
+    _sparse(p, 1 << 40)
+    with pytest.raises(DataError, match=r"huge\.csv: reading 3 columns of about [\d,]+ rows needs about [\d.]+ TiB "
+                                        r"of memory, over the limit of"):
+        ph.load_dataset(p)
+    q = tmp_path / "huge.npy"
+    with open(q, "wb") as fh:
+        np.lib.format.write_array_header_1_0(fh, {"descr": "<f8", "fortran_order": False, "shape": (10**11, 3)})
+    _sparse(q, 24 * 10**11 + 128)
+    with pytest.raises(DataError, match=r"huge\.npy: reading 1 array of up to 300,000,000,000 values needs about"):
+        ph.load_dataset(q, t_col=0, u_col=1, y_col=2)
+
+
+def test_a_resampled_gap_is_also_size_checked(tmp_path):
+    p = tmp_path / "gap.csv"
+    ph.save_dataset(p, ph.Dataset(np.r_[0.0, 1e-3, 2e-3, 1e6], [0.0, 1, 2, 3], [0.0, 1, 2, 3]))
+    with pytest.raises(DataError, match=r"resampling to 1000000001 samples needs about"):
+        ph.load_dataset(p, resample=True, max_memory="1G")
+
+
+@pytest.mark.parametrize(
+    "payload, name, match",
+    [
+        (b"TDSm\x00\x00\x00\x00" + bytes(64), "run.tdms", r"a LabVIEW TDMS file"),
+        (bytes(range(256)) * 8, "blob.bin", r"not a text file \(it contains NUL bytes\) nor another format piezohyst reads"),
+        (None, "notes.zip", r"a zip archive that is neither \.npz nor a spreadsheet"),
+        (b"PK\x03\x04garbage", "broken.npz", r"a damaged zip archive"),
+    ],
+)
+def test_unsupported_formats_list_the_supported_ones(tmp_path, payload, name, match):
+    import zipfile
+
+    p = tmp_path / name
+    if payload is None:
+        with zipfile.ZipFile(p, "w") as z:
+            z.writestr("readme.txt", "hello")
+    else:
+        p.write_bytes(payload)
+    with pytest.raises(DataError, match=match) as exc:
+        ph.load_dataset(p)
+    assert "supported formats: text tables" in str(exc.value) and "MATLAB .mat (v4, v5, v7 and v7.3)" in str(exc.value)
+
+
+def test_objects_are_never_unpickled(tmp_path):
+    p = tmp_path / "evil.npy"
+    np.save(p, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(DataError, match="evil.npy: holds Python objects, which are never loaded"):
+        ph.load_dataset(p, u_col=0, y_col=0)
+    q = tmp_path / "evil.npz"
+    np.savez(q, u=np.array([object(), object()], dtype=object), y=Y)
+    with pytest.raises(DataError, match=r"evil\.npz: 'u' \(the input voltage u\) is Python objects, which are never"):
+        ph.load_dataset(q, fs=1)
+
+
+def test_a_damaged_mat_file_is_refused_not_crashed(tmp_path, ref):
+    # Found by fuzzing: one byte set to 220 in a variable's data-type tag made scipy's compiled
+    # v5 reader crash the interpreter (segmentation fault). The file is now checked first.
+    p = tmp_path / "ok.mat"
+    sio.savemat(p, {"t": T, "u": U, "y": Y})
+    same(ph.load_dataset(p), ref)
+    data = bytearray(p.read_bytes())
+    # header 128 bytes; variable t: miMATRIX tag (8), flags (16), dims (16), name "t" (8): data tag at 176
+    assert data[176] == 9  # miDOUBLE
+    data[176] = 220
+    q = tmp_path / "damaged.mat"
+    q.write_bytes(bytes(data))
+    with pytest.raises(DataError, match=r"damaged\.mat: a damaged MATLAB file \(unknown element type 220"):
+        ph.load_dataset(q)
+    q.write_bytes(p.read_bytes()[:300])
+    with pytest.raises(DataError, match=r"damaged\.mat: a damaged MATLAB file \(the variable at byte \d+ runs past"):
+        ph.load_dataset(q)
+
+
+def test_matlab_v4_and_ascii_mat_files(tmp_path, ref):
+    p = tmp_path / "v4.mat"
+    sio.savemat(p, {"t": T, "u": U, "y": Y}, format="4")
+    ds = ph.load_dataset(p)
+    same(ds, ref)
+    assert ds.meta["format"] == "mat-v4"
+    q = tmp_path / "ascii.mat"  # MATLAB's save -ascii: a text table under a .mat name
+    np.savetxt(q, np.column_stack([T, U, Y]), fmt="%.15e")
+    same(ph.load_dataset(q, t_col=0, u_col=1, y_col=2), ref)
+
+
+def test_paths_into_structs_that_do_not_exist(tmp_path):
+    p = tmp_path / "s.mat"
+    sio.savemat(p, {"log": {"signals": v5_struct_array([{"values": U[:, None]}, {"values": Y[:, None]}]),
+                            "time": T[:, None]}})
+    with pytest.raises(DataError, match=r"index 5 is out of range in 'log.signals', which has 2 elements"):
+        ph.load_dataset(p, u_col="log.signals[5].values", y_col="log.signals[1].values")
+    with pytest.raises(DataError, match=r"no variable or signal 'log.sig' .*the file holds log.signals\[0\].values"):
+        ph.load_dataset(p, u_col="log.sig", y_col="log.signals[1].values")
+    with pytest.raises(DataError, match=r"a column number \(0\) picks from the one matrix in a file"):
+        ph.load_dataset(p, u_col=0, y_col=1)
+
+
+def test_missing_file_and_directory():
+    with pytest.raises(DataError, match="no such file"):
+        ph.load_dataset("/nonexistent/file.csv")
+    with pytest.raises(DataError, match="is a directory"):
+        ph.load_dataset(Path(__file__).parent)
+    with pytest.raises(DataError, match="a data file is given by its path"):
+        ph.load_dataset(12)
+
+
+# ---- read_table (the command line's reference loader reads through it) ---------------------------
+def test_read_table(tmp_path):
+    p = tmp_path / "ref.csv"
+    p.write_text("# desired path\ntime [s];x [um]\n0,0;1,5\n0,1;2,5\n")
+    names, arr, header = read_table(p)
+    assert names == ["time [s]", "x [um]"] and header and arr.tolist() == [[0.0, 1.5], [0.1, 2.5]]
+    q = tmp_path / "one.txt"
+    q.write_text("1.0\n2.0\n3.0\n")
+    names, arr, header = read_table(q)
+    assert names == ["0"] and not header and arr.shape == (3, 1)
+    with pytest.raises(DataError, match=r"line 3, column '0': 'x' is not a number"):
+        q.write_text("1.0\n2.0\nx\n4.0\n")
+        read_table(q)
+
+
+# ---- the bundled data sets -----------------------------------------------------------------------
+def test_bundled_data_through_importlib_resources(monkeypatch):
+    from importlib.resources import files
+
+    monkeypatch.delenv("PIEZOHYST_DATA", raising=False)
+    res = files("piezohyst") / "datasets" / "piezo-dbo" / "Model_Vi_Do.dat"
+    assert res.is_file() and Path(str(res)).resolve() == (data_dir() / "piezo-dbo" / "Model_Vi_Do.dat").resolve()
+    root = Path(__file__).resolve().parents[1]
+    # the repository paths the documented commands use still work (data/ links to the package's)
+    for rel in ("data/piezo-dbo/Model_Vi_Do.dat", "data/bouc-wen-benchmark/bouc-wen.mat"):
+        assert (root / rel).is_file()
+    assert ph.load_piezo_dbo().sha256 == ph.load_dataset(root / "data/piezo-dbo/Model_Vi_Do.dat",
+                                                         u_col=0, y_col=4, fs=200).sha256
+
+
+def test_data_dir_honours_the_environment(tmp_path, monkeypatch):
+    monkeypatch.setenv("PIEZOHYST_DATA", str(tmp_path))
+    assert data_dir() == tmp_path
+    with pytest.raises(DataError, match="the bundled data set is missing"):
+        ph.load_piezo_dbo()
+
+
+def test_every_bundled_file_is_package_data():
+    root = Path(__file__).resolve().parents[1]
+    conf = tomllib.loads((root / "pyproject.toml").read_text())
+    patterns = conf["tool"]["setuptools"]["package-data"]["piezohyst.datasets"]
+    base = root / "src" / "piezohyst" / "datasets"
+    shipped = {p for pat in patterns for p in base.glob(pat) if p.is_file()}
+    present = {p for p in base.rglob("*") if p.is_file()}
+    assert present and shipped == present, sorted(str(p.relative_to(base)) for p in present - shipped)
+
+
+def test_meta_is_json_ready(tmp_path, ref):
+    p = tmp_path / "m.csv"
+    ph.save_dataset(p, ref)
+    ds = ph.load_dataset(p)
+    json.dumps(ds.meta)
+    assert ds.meta["source"] == str(p) and len(ds.meta["source_sha256"]) == 64
+    assert os.fspath(p) in ds.meta["source"]
