@@ -31,7 +31,7 @@ _LAZY: dict[str, str] = {
     "FitResult": "identify", "fit_bouc_wen": "identify", "fit_pi": "identify", "fit_rate_pi": "identify",
     "fit_model": "identify", "fit_asymmetric_pi": "identify", "fit_preisach": "identify",
     "fit_rate_dependent": "identify",
-    "AsymmetricPI": "models", "BoucWen": "models", "BoucWenStepper": "models", "Compensator": "models",
+    "AsymmetricPI": "models", "BoucWen": "models", "BoucWenHysteresis": "models", "BoucWenStepper": "models", "Compensator": "models",
     "HysteresisModel": "models", "OutputMap": "models", "PIStepper": "models", "Preisach": "models",
     "PrandtlIshlinskii": "models", "RateDependent": "models", "RateDependentPI": "models",
     "equal_thresholds": "models", "play_operator": "models", "kinds": "models",
@@ -71,7 +71,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .identify import (FitResult, fit_asymmetric_pi, fit_bouc_wen, fit_model, fit_pi,  # noqa: F401
                            fit_preisach, fit_rate_dependent, fit_rate_pi)
     from .modelio import ModelFileError, load_model, save_model  # noqa: F401
-    from .models import (AsymmetricPI, BoucWen, BoucWenStepper, Compensator, HysteresisModel,  # noqa: F401
+    from .models import (AsymmetricPI, BoucWen, BoucWenHysteresis, BoucWenStepper, Compensator, HysteresisModel,  # noqa: F401
                          OutputMap, PIStepper, PrandtlIshlinskii, Preisach, RateDependent, RateDependentPI,
                          equal_thresholds, kinds, play_operator)
     from .plant import Plant, open_loop  # noqa: F401

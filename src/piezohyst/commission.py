@@ -8,11 +8,15 @@ the :class:`~piezohyst.rig.VirtualRig`: it is how a user commissions a real stag
 What it does, and why (the contribution of each step is measured in ``piezohyst reproduce``'s
 ablation and in ``tests/test_commission.py``):
 
-1. **Identification experiment** (:func:`commissioning_excitation`, ~9.5 s): a full-range 1 Hz
-   sinusoid (major loop), a 2 Hz sinusoid of decaying amplitude (nested minor loops: every
-   threshold is exercised), full-range 5 and 10 Hz sinusoids (rate dependence), a hold at
-   mid-range (creep) and a 3 Hz sinusoid. Within the amplifier range the plant reports
-   (``plant.u_range``) or the one given.
+1. **Identification experiment** (:func:`commissioning_excitation`, ~10 s, segments joined by
+   raised-cosine ramps): for fitting, a slow approach from rest (0 V, or the nearest end of the
+   range) to the bottom of the range (the initial loading curve, which a tracking run from rest
+   starts on), a full-range 1 Hz sinusoid (major loop), a 2 Hz sinusoid
+   of decaying amplitude (nested minor loops: every threshold is exercised), full-range 5 and
+   10 Hz sinusoids (rate dependence) and a hold at mid-range (creep); for choosing among the
+   candidate models, other frequencies and amplitudes over the same band (3 Hz, 1.5 Hz decaying,
+   7 Hz), so the choice rewards what carries over rather than what fits. Within the amplifier
+   range the plant reports (``plant.u_range``) or the one given.
 2. **Model**: chosen on held-out data among every linear kind and structure
    (:func:`~piezohyst.identify.fit_model`): P-I, asymmetric P-I or Preisach, with an input lag
    (amplifier + stack) and output lags (rate dependence, creep) where they predict better, the
@@ -56,21 +60,58 @@ from .models.base import Compensator, kind_of
 from .signals import estimate_period, sinusoid
 
 #: The kinds commissioning chooses from: fast to fit, each with an exact or numerical inverse.
-COMMISSION_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach")
+COMMISSION_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach", "bouc-wen-hysteresis")
+
+
+def _decaying(freq: float, seconds: float, lo: float, hi: float, dt: float, end: float) -> FloatArray:
+    """A sinusoid from ``lo`` whose amplitude falls linearly to ``end`` of the full one: nested minor loops."""
+    mid, amp = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    t = np.arange(int(round(seconds / dt))) * dt
+    return mid - amp * np.cos(2 * np.pi * freq * t) * np.linspace(1.0, end, t.size)
+
+
+def join_smoothly(parts: list[FloatArray], dt: float, ramp_s: float = 0.02) -> FloatArray:
+    """Concatenate command segments, joining ends that differ with a raised-cosine ramp of
+    ``ramp_s`` seconds, so the command never steps between segments."""
+    out = [parts[0]]
+    n = max(int(round(ramp_s / dt)), 2)
+    shape = 0.5 * (1 - np.cos(np.pi * np.arange(1, n + 1) / (n + 1)))
+    for p in parts[1:]:
+        a, b = float(out[-1][-1]), float(p[0])
+        if a != b:
+            out.append(a + (b - a) * shape)
+        out.append(p)
+    return np.concatenate(out)
 
 
 def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100.0)) -> FloatArray:
-    """The identification experiment's command (V): see the module docstring, step 1."""
+    """The identification experiment's command (V): see the module docstring, step 1.
+
+    Its first :func:`identification_length` samples are fitted on; the rest (other frequencies
+    and amplitudes over the same band) only choose the model among the candidates.
+    """
+    return join_smoothly([*_identification_parts(dt, u_range), *_validation_parts(dt, u_range)], dt)
+
+
+def _identification_parts(dt: float, u_range: tuple[float, float]) -> list[FloatArray]:
     lo, hi = u_range
-    mid, amp = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    parts = [sinusoid(1.0, 2, lo, hi, dt)]
-    t = np.arange(int(round(4.0 / dt))) * dt
-    parts.append(mid - amp * np.cos(2 * np.pi * 2.0 * t) * np.linspace(1.0, 0.2, t.size))
-    for f in (5.0, 10.0):
-        parts.append(sinusoid(f, 5, lo, hi, dt))
-    parts.append(np.full(int(round(1.0 / dt)), mid))
-    parts.append(sinusoid(3.0, 3, lo, hi, dt))
-    return np.concatenate(parts)
+    mid = 0.5 * (lo + hi)
+    rest = min(max(0.0, lo), hi)  # where a de-energised stage sits
+    # from rest to the bottom of the range slowly: the initial loading curve is part of the model
+    n = int(round(0.25 / dt))
+    approach = rest + (lo - rest) * 0.5 * (1 - np.cos(np.pi * np.arange(n + 1) / n))
+    return [approach, sinusoid(1.0, 2, lo, hi, dt), _decaying(2.0, 3.0, lo, hi, dt, 0.2),
+            sinusoid(5.0, 5, lo, hi, dt), sinusoid(10.0, 5, lo, hi, dt), np.full(int(round(0.5 / dt)), mid)]
+
+
+def _validation_parts(dt: float, u_range: tuple[float, float]) -> list[FloatArray]:
+    lo, hi = u_range
+    return [sinusoid(3.0, 3, lo, hi, dt), _decaying(1.5, 4 / 3, lo, hi, dt, 0.5), sinusoid(7.0, 4, lo, hi, dt)]
+
+
+def identification_length(dt: float, u_range: tuple[float, float] = (0.0, 100.0)) -> int:
+    """Samples of :func:`commissioning_excitation` that are fitted on (the rest is for choosing)."""
+    return int(join_smoothly(_identification_parts(dt, u_range), dt).size)
 
 
 def _lowpass_periodic(x: FloatArray, dt: float, cutoff_hz: float) -> FloatArray:
@@ -214,9 +255,19 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     rng_u = u_range if u_range is not None else tuple(getattr(plant, "u_range", (0.0, 100.0)))
     if not rng_u[0] < rng_u[1]:
         raise ValueError(f"u_range must be (low, high) with low < high, got {rng_u}")
-    cmd = commissioning_excitation(dt, rng_u) if excitation is None else as_signal("excitation", excitation)  # type: ignore[arg-type]
+    if excitation is None:
+        cmd = commissioning_excitation(dt, rng_u)  # type: ignore[arg-type]
+        n_id = identification_length(dt, rng_u)  # type: ignore[arg-type]
+    else:
+        cmd = as_signal("excitation", excitation)
+        n_id = None
     ds = open_loop(plant, cmd)
-    fit = fit_model(ds.u, ds.y, dt, "auto", kinds=COMMISSION_KINDS, n=n)
+    if n_id is not None:
+        # fit on the identification part, choose on the rest (simulated from the start)
+        fit = fit_model(ds.u[:n_id], ds.y[:n_id], dt, "auto", kinds=COMMISSION_KINDS, n=n,
+                        validation=[(ds.u, ds.y, n_id)])
+    else:
+        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=COMMISSION_KINDS, n=n)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain)
     if tune:
         level = float(np.median(ds.y))

@@ -37,6 +37,7 @@ import numpy as np
 from .._numba import njit
 from .._validation import FloatArray
 from ..models.asymmetric_pi import AsymmetricPI, OutputMap
+from ..models.bouc_wen_hysteresis import BoucWenHysteresis, max_unit_slope, unit_hysteresis
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
 from ..models.play import play_outputs
 from ..models.preisach import Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs
@@ -60,10 +61,11 @@ class Structure:
 
     Attributes
     ----------
-    static : {"pi", "preisach"}
-        The rate-independent part.
+    static : {"pi", "preisach", "bouc-wen"}
+        The rate-independent part (``"bouc-wen"``: the Bouc-Wen hysteresis of
+        :mod:`piezohyst.models.bouc_wen_hysteresis`, its shape fixed by ``shape``).
     size : int
-        P-I operators, or Preisach grid levels.
+        P-I operators, or Preisach grid levels (unused for Bouc-Wen).
     map_knots : int
         Knots of the asymmetric P-I model's output map (0: no map; P-I only).
     taus : tuple of float
@@ -85,10 +87,13 @@ class Structure:
     delay: int = 0
     thresholds: str = "span"
     u_max: float | None = None
+    shape: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
-        if self.static not in ("pi", "preisach"):
-            raise ValueError(f"static must be 'pi' or 'preisach', got {self.static!r}")
+        if self.static not in ("pi", "preisach", "bouc-wen"):
+            raise ValueError(f"static must be 'pi', 'preisach' or 'bouc-wen', got {self.static!r}")
+        if self.static == "bouc-wen" and not self.shape[0] > abs(self.shape[1]):
+            raise ValueError(f"a Bouc-Wen shape needs beta > |gamma|, got {self.shape}")
         if self.map_knots and self.static != "pi":
             raise ValueError("an output map goes with a P-I static part")
         if self.map_knots % 2:
@@ -106,11 +111,12 @@ class Structure:
             return "asymmetric-pi"
         if self.rate_dependent:
             return "rate-dependent"
-        return "prandtl-ishlinskii" if self.static == "pi" else "preisach"
+        return {"pi": "prandtl-ishlinskii", "preisach": "preisach", "bouc-wen": "bouc-wen-hysteresis"}[self.static]
 
     def label(self) -> str:
         name = {"pi": f"P-I n={self.size}" + (" (eq. 4 thresholds)" if self.thresholds == "eq4" else ""),
-                "preisach": f"Preisach {self.size} levels"}[self.static]
+                "preisach": f"Preisach {self.size} levels",
+                "bouc-wen": f"Bouc-Wen hysteresis beta={self.shape[0]:.3g}/V gamma={self.shape[1]:.3g}/V"}[self.static]
         if self.map_knots:
             name = f"asymmetric {name}, {self.map_knots} map knots"
         parts = [name]
@@ -122,9 +128,12 @@ class Structure:
         return "; ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"static": self.static, "size": self.size, "map_knots": self.map_knots,
-                "taus_s": list(self.taus), "input_tau_s": self.input_tau, "delay": self.delay,
-                "thresholds": self.thresholds}
+        out = {"static": self.static, "size": self.size, "map_knots": self.map_knots,
+               "taus_s": list(self.taus), "input_tau_s": self.input_tau, "delay": self.delay,
+               "thresholds": self.thresholds}
+        if self.static == "bouc-wen":
+            out["beta_per_V"], out["gamma_per_V"] = self.shape
+        return out
 
 
 def _fmt_s(t: float) -> str:
@@ -147,24 +156,26 @@ class Prepared:
     m: int
     a_lag: FloatArray
     decode_info: dict[str, Any]
-    _gram: dict[int, FloatArray] = field(default_factory=dict, repr=False)
+    _gram: dict[tuple[int, int], FloatArray] = field(default_factory=dict, repr=False)
 
-    def gram(self, rows: int) -> FloatArray:
-        """``B[:rows]' B[:rows]`` of the base columns, from the nearest cached row count."""
-        g = self._gram.get(rows)
+    def gram(self, rows: int, stride: int = 1) -> FloatArray:
+        """``B' B`` over the base rows ``0, stride, 2 stride, ... < rows``, from the nearest cached
+        row count (a shorter set of rows only removes the last rows' share)."""
+        g = self._gram.get((rows, stride))
         if g is not None:
             return g
-        bigger = [r for r in self._gram if r > rows]
+        bigger = [r for (r, s) in self._gram if s == stride and r > rows]
         if bigger:
             r0 = min(bigger)
-            tail = self.base[rows:r0]
+            first = -(-rows // stride) * stride  # the first strided row at or after `rows`
+            tail = self.base[first:r0:stride]
             if r0 - rows <= 0.2 * rows:
-                g = self._gram[r0] - tail.T @ tail
-                self._gram[rows] = g
+                g = self._gram[(r0, stride)] - tail.T @ tail
+                self._gram[(rows, stride)] = g
                 return g
-        b = self.base[:rows]
+        b = self.base[:rows:stride]
         g = b.T @ b
-        self._gram[rows] = g
+        self._gram[(rows, stride)] = g
         return g
 
 
@@ -192,6 +203,13 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
         zd[:, :-1] -= z[:, 1:]  # y = sum_j S_j (z_j - z_{j+1}): the partial sums' columns
         static_cols, floor = zd, zd.sum(axis=1)  # sum of the columns = z_1 = v (r_1 = 0)
         info["thresholds"] = r
+    elif st.static == "bouc-wen":
+        beta, gamma = st.shape
+        h1 = unit_hysteresis(v, beta, gamma)
+        mslope = max_unit_slope(beta, gamma)
+        static_cols = (mslope * v - h1)[:, None]  # coefficient alpha d1 >= 0; slope floor on v
+        floor = np.array(v, dtype=np.float64)
+        info["max_unit_slope"] = mslope
     else:
         lo, hi = float(v_ref.min()), float(v_ref.max())
         pad = 1e-9 * (hi - lo)
@@ -264,11 +282,11 @@ def map_knots_for(y: FloatArray, count: int) -> tuple[FloatArray, float]:
 
 
 @njit
-def _tmatvec(b: FloatArray, rows: int, y: FloatArray) -> FloatArray:  # pragma: no cover - compiled
-    """``b[:rows].T @ y``, single-threaded (BLAS threads only contend on a shared machine here)."""
+def _tmatvec(b: FloatArray, rows: int, y: FloatArray, stride: int) -> FloatArray:  # pragma: no cover - compiled
+    """``b[:rows:stride].T @ y[::stride]``, single-threaded (BLAS threads only contend here)."""
     q = b.shape[1]
     out = np.zeros(q)
-    for k in range(rows):
+    for k in range(0, rows, stride):
         yk = y[k]
         for j in range(q):
             out[j] += b[k, j] * yk
@@ -321,26 +339,30 @@ def _design(pre: Prepared, margin: float, fit_offset: bool) -> tuple[FloatArray,
 
 
 def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
-                 margin: float, fit_offset: bool = True,
-                 predict: tuple[int, int] | None = None) -> tuple[Any, dict[str, Any], FloatArray]:
+                 margin: float, fit_offset: bool = True, predict: tuple[int, int] | None = None,
+                 stride: int = 1) -> tuple[Any, dict[str, Any], FloatArray]:
     """The best parameters of ``pre.structure`` on base rows ``[0, rows)`` paired with ``y``
     (``len(y) == rows``; the caller applies the delay). Returns the model, what the solve saw,
     and the model's prediction over base rows ``predict = (start, stop)`` (default all; µm, the
-    regressors times the parameters: the same numbers the model's ``simulate`` gives)."""
+    regressors times the parameters: the same numbers the model's ``simulate`` gives). With
+    ``stride > 1`` the fit uses every ``stride``-th row only (a model search on a long record:
+    the normal equations of a subsample of a smooth record are those of the whole, to within what
+    the choice among candidates needs)."""
     st, p, m = pre.structure, pre.p, pre.m
     yy = np.asarray(y, dtype=np.float64)
-    bmat = pre.base[:rows]
     t, shift, lb, ub, ne = _design(pre, margin, fit_offset)
-    gb = pre.gram(rows)
-    bty = _tmatvec(pre.base, rows, np.ascontiguousarray(yy))
+    gb = pre.gram(rows, stride)
+    bty = _tmatvec(pre.base, rows, np.ascontiguousarray(yy), stride)
     # rhs = y - base @ shift; A = base @ T (+ the map's columns)
     gram = t.T @ gb @ t
     atb = t.T @ (bty - gb @ shift)
     knots = centre = None
     if st.map_knots:
-        knots, centre = map_knots_for(yy, st.map_knots)
-        mc, const, hi = _map_columns(yy, knots, centre)
-        rhs_extra = yy - _matvec(pre.base, 0, rows, shift) - const
+        ys = yy[::stride]
+        bmat = pre.base[:rows:stride]
+        knots, centre = map_knots_for(ys, st.map_knots)
+        mc, const, hi = _map_columns(ys, knots, centre)
+        rhs_extra = ys - bmat @ shift - const
         a_b = bmat @ t
         k = mc.shape[1]
         g2 = np.empty((gram.shape[0] + k, gram.shape[0] + k))
@@ -358,6 +380,7 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
     if st.static == "preisach":
         ridge = np.zeros(gram.shape[0])
         ridge[:p] = PREISACH_RIDGE * float(np.mean(np.diag(gram)[:p]))
+        ridge[p - 2 * st.size:p] = 0.0  # the strips beyond the range: what the data see, unpenalised
     x = bounded_lstsq_gram(gram, atb, lb, ub, ridge=ridge)
     nx = t.shape[1]
     xb, tau_map = x[:nx], (x[nx:] if st.map_knots else None)
@@ -372,6 +395,10 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
         s_part = coef[:p] + coef[p]  # S_j = t_j + floor coefficient
         w = np.diff(np.concatenate([[0.0], s_part]))
         static: Any = PrandtlIshlinskii(pre.decode_info["thresholds"], w, offset=offset)
+    elif st.static == "bouc-wen":
+        ad1 = float(tt[0])
+        d1 = ad1 * pre.decode_info["max_unit_slope"] + float(coef[p])
+        static = BoucWenHysteresis(d1=d1, alpha=ad1 / d1, beta=st.shape[0], gamma=st.shape[1], offset=offset)
     else:
         lo, hi_ = pre.decode_info["grid"]
         static = Preisach(lo=lo, hi=hi_, weights=np.maximum(tt, 0.0), slope=float(coef[p]), offset=offset)
@@ -389,10 +416,12 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
         pred = omap.forward_map(inner_pred)
     if st.static == "pi":
         slack = float(tt.min())
+    elif st.static == "bouc-wen":
+        slack = e
     else:  # inside the grid the diagonal (reversible) hysterons add to the slope
         ii, jj = np.tril_indices(st.size)
         lo, hi_ = pre.decode_info["grid"]
-        slack = e + float(tt[ii == jj].min()) * st.size / (hi_ - lo)
+        slack = e + float(tt[: ii.size][ii == jj].min()) * st.size / (hi_ - lo)
     info = {"margin": margin, "slope_floor": s0 - e + slack,
             "floor_at_margin": bool(slack <= 1e-6 * margin), "n_parameters": int(gram.shape[0])}
     return model, info, pred

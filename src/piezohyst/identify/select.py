@@ -38,15 +38,18 @@ import numpy as np
 
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
-from .linear import Structure, fit_prepared, fit_structure, mean_slope, prepare
+from .linear import DEFAULT_MARGIN, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals
 
 #: Relative drop of the hold-out error a more complex candidate must bring to be preferred.
 MIN_GAIN = 0.02
 #: Fraction of the training record held out when no validation data are given.
 HOLDOUT = 0.3
+#: Rows the search fits each candidate on (every k-th of a longer record; the winner is refitted
+#: on every row).
+SEARCH_ROWS = 30000
 
-_LINEAR_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach")
+_LINEAR_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach", "bouc-wen-hysteresis")
 
 
 @dataclass(frozen=True)
@@ -126,6 +129,8 @@ class _Scorer:
         self.u, self.y, self.dt, self.n_fit = u, y, dt, n_fit
         self.validation = validation
         self.margin = margin
+        #: the search fits on every stride-th row (at most SEARCH_ROWS rows); the refit uses all
+        self.stride = max(1, n_fit // SEARCH_ROWS)
         self.tried: list[_Candidate] = []
         self._prep: dict[Any, Any] = {}
         self._done: dict[Structure, _Candidate] = {}
@@ -156,13 +161,13 @@ class _Scorer:
         d, n = st.delay, self.u.size
         if self.validation:
             model, info, _ = fit_prepared(pre, self.y[d:self.n_fit], self.n_fit - d, self.dt, margin=self.margin,
-                                          predict=(0, 1))
+                                          predict=(0, 1), stride=self.stride)
             score, per = self.score_model(model, d, None)
             fit_rmse = float("nan")
         else:
             # prediction of sample k is row k - d: rows [n_fit - d, n - d) score the held-out samples
             model, info, pred = fit_prepared(pre, self.y[d:self.n_fit], self.n_fit - d, self.dt, margin=self.margin,
-                                             predict=(self.n_fit - d, n - d))
+                                             predict=(self.n_fit - d, n - d), stride=self.stride)
             e = self.y[self.n_fit:] - pred
             score = float(np.sqrt(np.mean(e**2)))
             per = [score]
@@ -207,7 +212,7 @@ def fit_model(
     validation: Sequence[Any] | None = None, holdout: float = HOLDOUT, delay: int | str = "auto",
     n: int | None = None, kinds: Sequence[str] | None = None, margin: float | None = None,
     taus: Sequence[float] | None = None, input_taus: Sequence[float] | None = None,
-    max_delay: int | None = None, statics: Sequence[str] = ("pi", "preisach"),
+    max_delay: int | None = None, statics: Sequence[str] = ("pi", "preisach", "bouc-wen"),
     seed: Any = 0, bouc_wen_options: dict[str, Any] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> FitResult:
@@ -241,7 +246,7 @@ def fit_model(
     taus, input_taus, max_delay : optional
         Replace the data-derived output lags (one set, used as given), input-lag candidates and
         largest delay of the search.
-    statics : sequence of {"pi", "preisach"}
+    statics : sequence of {"pi", "preisach", "bouc-wen"}
         The static parts the linear kinds may use.
     seed, bouc_wen_options
         For the Bouc-Wen candidate (PSO).
@@ -280,7 +285,7 @@ def fit_model(
     if n_fit < 50 or (not vsets and n_total - n_fit < 20):
         raise ValueError(f"{n_total} samples are too few to fit on one part and choose on another")
     if margin is None:
-        margin = 0.02 * mean_slope(us[:n_fit], ys[:n_fit])
+        margin = DEFAULT_MARGIN * mean_slope(us[:n_fit], ys[:n_fit])
     ranges = search_ranges(us, dt, n_fit)
     if taus is not None or input_taus is not None or max_delay is not None:
         ranges = replace(
@@ -288,16 +293,21 @@ def fit_model(
             input_taus=ranges.input_taus if input_taus is None else tuple(float(t) for t in input_taus if t > 0),
             rate_taus=ranges.rate_taus if taus is None else tuple(float(t) for t in taus),
             creep_taus=ranges.creep_taus if taus is None else ())
-    bad = set(statics) - {"pi", "preisach"}
+    bad = set(statics) - {"pi", "preisach", "bouc-wen"}
     if bad or not statics:
-        raise ValueError(f"statics must be a non-empty selection of 'pi' and 'preisach', got {list(statics)}")
+        raise ValueError(f"statics must be a non-empty selection of 'pi', 'preisach' and 'bouc-wen', got {list(statics)}")
     sc = _Scorer(us, ys, dt, n_fit, vsets, margin)
     linear = [k for k in allowed if k in _LINEAR_KINDS]
     best: _Candidate | None = None
     if linear:
         pi_static = "pi" in statics and any(k in ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi")
                                             for k in linear)
-        base = Structure("pi" if pi_static else "preisach", n or (20 if pi_static else 12))
+        if pi_static:
+            base = Structure("pi", n or 20)
+        elif "preisach" in statics and any(k in ("preisach", "rate-dependent") for k in linear):
+            base = Structure("preisach", n or 12)
+        else:  # the Bouc-Wen hysteresis alone: align with a mid-range shape
+            base = Structure("bouc-wen", 1, shape=(1.5 / float(np.ptp(us[:n_fit])), 0.0))
         # P-I thresholds over half the input's span (the operators that move in steady loops) or by
         # the paper's eq. (4) (the initial loading too): the whole search runs for each, since which
         # one wins can change once lags take part of the error
@@ -408,6 +418,9 @@ def _kind_stage(sc: _Scorer, best: _Candidate, linear: list[str], n: int | None,
                 inc = _best(maps)
             for c in maps:
                 inc = _prefer(inc, c)
+    if "bouc-wen" in statics and ("bouc-wen-hysteresis" in linear or ("rate-dependent" in linear and st0.rate_dependent)):
+        inc = _bouc_wen_shapes(sc, inc, st0, "bouc-wen-hysteresis" in linear, "rate-dependent" in linear,
+                               force == "bouc-wen-hysteresis")
     want_plain = "preisach" in linear and "preisach" in statics
     want_rate = "rate-dependent" in linear and st0.rate_dependent and "preisach" in statics
     if want_plain or want_rate:
@@ -419,6 +432,36 @@ def _kind_stage(sc: _Scorer, best: _Candidate, linear: list[str], n: int | None,
                                          (c if c.score < (1.0 - MIN_GAIN) * inc.score else inc))
     assert inc is not None
     return inc
+
+
+def _bouc_wen_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bool, lagged: bool,
+                     force: bool) -> _Candidate:
+    """The Bouc-Wen hysteresis with the stage's lags (or none): its shape (beta, gamma) on a grid
+    over the input's span (``beta span`` from 0.5 to 15: loops that saturate little to much;
+    ``gamma / beta`` -0.5, 0, 0.5: skewed either way or not), then refined around the best."""
+    span = float(np.ptp(sc.u[: sc.n_fit]))
+    keep_rate = lagged and st0.rate_dependent
+    taus, itau = (st0.taus, st0.input_tau) if keep_rate else ((), 0.0)
+    if not keep_rate and not plain:
+        assert inc is not None
+        return inc
+
+    def cand(b: float, g_ratio: float) -> _Candidate:
+        st = Structure("bouc-wen", 1, 0, taus, itau, st0.delay, shape=(b / span, g_ratio * b / span))
+        return sc.linear(st)
+
+    grid = [cand(b, g) for b in (0.5, 1.5, 5.0, 15.0) for g in (-0.5, 0.0, 0.5)]
+    best = _best(grid)
+    b0 = best.structure.shape[0] * span
+    g0 = best.structure.shape[1] / best.structure.shape[0]
+    for b in (b0 / 1.7, b0 * 1.7):
+        for g in (g0 - 0.25, g0, g0 + 0.25):
+            if -0.9 < g < 0.9:
+                c = cand(b, g)
+                best = c if c.score < best.score else best
+    if inc is None or force:
+        return best
+    return _prefer(inc, best)
 
 
 def _fit_bouc_wen(u: FloatArray, y: FloatArray, dt: float, d: int, seed: Any,

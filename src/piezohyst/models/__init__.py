@@ -10,10 +10,12 @@ from .play import play_operator
 from .rate import RateDependent, RateDependentPI
 from .preisach import Preisach
 from .asymmetric_pi import AsymmetricPI, OutputMap
+from .bouc_wen_hysteresis import BoucWenHysteresis
 
 __all__ = [
     "AsymmetricPI",
     "BoucWen",
+    "BoucWenHysteresis",
     "BoucWenStepper",
     "Compensator",
     "HysteresisModel",

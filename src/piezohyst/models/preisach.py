@@ -5,7 +5,12 @@
 The input range ``[lo, hi]`` is cut into ``n`` steps of ``delta = (hi - lo) / n``. Hysteron
 ``(i, j)`` switches up at ``alpha_i = lo + (i + 1) delta`` and down at ``beta_j = lo + j delta``
 (``alpha_i - beta_j >= delta``): the classical triangle ``alpha >= beta`` of the Preisach plane,
-one weight ``mu_ij >= 0`` per cell, ``n (n + 1) / 2`` weights. Each relay switches over one grid
+one weight ``mu_ij >= 0`` per cell, ``n (n + 1) / 2`` weights. The plane does not end at the
+range: cells whose ``beta`` lies below it switch up at ``alpha_i`` and never down again (the
+initial loading curve of an actuator that starts de-energised at the bottom of its range, which
+a P-I model has too), and cells whose ``alpha`` lies above it only ever switch down. Each of the
+two strips acts as one hysteron per level, ``n`` up-only and ``n`` down-only weights, so a model
+has ``n (n + 1) / 2 + 2 n`` weights. Each relay switches over one grid
 step rather than at a point (a Krasnosel'skii-Pokrovskii kernel): its state ``z in [0, 1]`` is
 pushed up by the ramp ``clip((v - alpha_i + delta) / delta, 0, 1)`` and down by
 ``clip((v - beta_j) / delta, 0, 1)``::
@@ -49,15 +54,32 @@ BISECTION_STEPS = 60
 
 
 def grid_size(n: int) -> int:
-    """Number of hysterons of an ``n``-level grid: ``n (n + 1) / 2``."""
-    return n * (n + 1) // 2
+    """Number of hysterons of an ``n``-level grid: ``n (n + 1) / 2 + 2 n`` (module docstring)."""
+    return n * (n + 1) // 2 + 2 * n
+
+
+def levels_of(size: int) -> int:
+    """The ``n`` with ``grid_size(n) == size``, or ValueError."""
+    n = int(round((math.sqrt(8 * size + 25) - 5) / 2))
+    if n < 1 or grid_size(n) != size:
+        raise ValueError(f"weights must have n (n + 1) / 2 + 2 n entries for an n-level grid; {size} is not such a number")
+    return n
+
+
+#: Stands for a threshold beyond the input's reach (finite, so the kernels stay in floating point).
+FAR = 1e30
 
 
 def grid_thresholds(lo: float, hi: float, n: int) -> tuple[FloatArray, FloatArray, float]:
-    """``alpha``, ``beta`` per hysteron (row-major over ``i``, then ``j <= i``) and ``delta``."""
+    """``alpha``, ``beta`` per hysteron and ``delta``: the triangle (row-major over ``i``, then
+    ``j <= i``), then ``n`` up-only hysterons (``beta`` below the range, one per ``alpha_i``) and
+    ``n`` down-only ones (``alpha`` above it, one per ``beta_j``): see :class:`Preisach`."""
     delta = (hi - lo) / n
     ii, jj = np.tril_indices(n)
-    return lo + (ii + 1) * delta, lo + jj * delta, delta
+    levels = np.arange(n)
+    alpha = np.concatenate([lo + (ii + 1) * delta, lo + (levels + 1) * delta, np.full(n, FAR)])
+    beta = np.concatenate([lo + jj * delta, np.full(n, -FAR), lo + levels * delta])
+    return alpha, beta, delta
 
 
 @njit
@@ -170,8 +192,10 @@ def preisach_solve(target: float, v_prev: float, alpha: FloatArray, beta: FloatA
 def demagnetised_state(alpha: FloatArray, beta: FloatArray, delta: float, at: float = 0.0) -> FloatArray:
     """The state of a de-energised actuator at input ``at``: hysterons centred below ``at`` are
     up, those above are down (the Preisach plane's staircase is the line ``alpha + beta = 2 at``);
-    the P-I model's zero initial state is the same state."""
+    the P-I model's zero initial state is the same state. Up-only hysterons (those that stand for
+    the cells below the range still down at ``at``) start down, down-only ones up."""
     z = np.where(0.5 * (alpha + beta) < at, 1.0, 0.0)
+    z = np.where(beta <= -FAR, 0.0, np.where(alpha >= FAR, 1.0, z))
     up = np.clip((at - alpha) / delta + 1.0, 0.0, 1.0)
     down = np.clip((at - beta) / delta, 0.0, 1.0)
     return np.minimum(np.maximum(z, up), down)
@@ -186,8 +210,9 @@ class Preisach:
     ----------
     lo, hi : float
         The input range the grid covers, V.
-    weights : array_like, shape (n (n + 1) / 2,)
-        ``mu_ij >= 0``, row-major over ``i`` then ``j <= i`` (``numpy.tril_indices`` order).
+    weights : array_like, shape (n (n + 1) / 2 + 2 n,)
+        ``mu_ij >= 0``, row-major over ``i`` then ``j <= i`` (``numpy.tril_indices`` order),
+        then the ``n`` up-only and the ``n`` down-only weights (module docstring).
     slope : float
         The reversible linear part, > 0 for an invertible model (output units per volt).
     offset : float
@@ -196,7 +221,7 @@ class Preisach:
     Examples
     --------
     >>> import numpy as np, piezohyst as ph
-    >>> m = ph.Preisach(lo=0.0, hi=10.0, weights=np.full(10, 0.1), slope=0.05)
+    >>> m = ph.Preisach(lo=0.0, hi=10.0, weights=np.full(18, 0.1), slope=0.05)
     >>> u = ph.sinusoid(1.0, 2, 0.0, 10.0, 1e-3)
     >>> bool(np.allclose(m.simulate(m.compensator().command(m.simulate(u))), m.simulate(u), atol=1e-9))
     True
@@ -218,10 +243,7 @@ class Preisach:
         if not hi > lo:
             raise ValueError(f"hi must be greater than lo, got lo={lo:g}, hi={hi:g}")
         mu = as_signal("weights", self.weights)
-        n = int(round((math.sqrt(8 * mu.size + 1) - 1) / 2))
-        if grid_size(n) != mu.size:
-            raise ValueError(f"weights must have n (n + 1) / 2 entries for an n-level grid; "
-                             f"{mu.size} is not such a number")
+        levels_of(mu.size)
         if np.any(mu < 0):
             raise ValueError(f"weights must all be >= 0 (a Preisach density), got min {mu.min():.4g}")
         object.__setattr__(self, "lo", lo)
@@ -233,7 +255,7 @@ class Preisach:
     @property
     def n(self) -> int:
         """Grid levels."""
-        return int(round((math.sqrt(8 * self.weights.size + 1) - 1) / 2))
+        return levels_of(self.weights.size)
 
     def _grid(self) -> tuple[FloatArray, FloatArray, float]:
         return grid_thresholds(self.lo, self.hi, self.n)

@@ -1,0 +1,227 @@
+"""The rate-independent Bouc-Wen hysteresis, eq. (8), as a static kind (beyond the paper).
+
+    y = offset + d1 v - h,       dh = alpha d1 dv - beta |dv| h - gamma dv |h|          (8)
+
+This is the paper's Bouc-Wen model with its dynamics, eq. (7), settled (``x = d1 u - h``), in
+micrometres: the Duhem-type memory (a loop's shape set by the state ``h`` alone, minor loops
+that need not close) that the Preisach family (P-I, Preisach) does not have. Two facts make it a
+member of the linear family of :mod:`piezohyst.identify.linear`:
+
+* eq. (8) is homogeneous of degree one in ``(h, alpha d1)``: with ``h1`` the solution for
+  ``alpha d1 = 1``, ``h = alpha d1 h1``. For fixed ``beta`` and ``gamma`` the output
+  ``offset + d1 v - alpha d1 h1(v)`` is linear in ``d1``, ``alpha d1`` and the offset, and the
+  shape ``(beta, gamma)`` is searched on held-out data;
+* with ``|h1| <= 1 / (beta + gamma)`` (``beta > |gamma|``), ``dh1/dv`` lies in
+  ``[0, M]``, ``M = 2 beta / (beta + gamma)``, so the output's slope lies in
+  ``[d1 (1 - alpha M), d1]``: invertible when ``alpha M < 1`` (:attr:`min_slope` > 0).
+
+The inverse is numerical, as for the Preisach model: the output is increasing in the input with
+slope at least :attr:`min_slope`, so each sample's command is bracketed and bisected to 1e-12 of
+the bracket, with ``h`` advanced exactly over the increment
+(:func:`~piezohyst.models.bouc_wen.bw_h_update`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .._numba import njit
+from .._validation import FloatArray, as_scalar, as_signal
+from .base import Compensator, check_dt, register_kind
+from .bouc_wen import bw_h_update, bw_hysteresis
+
+#: Halvings of the inverse's bracket before the final secant step.
+BISECTION_STEPS = 60
+
+
+def unit_hysteresis(v: FloatArray, beta: float, gamma: float) -> FloatArray:
+    """``h1``: eq. (8) with ``alpha d1 = 1`` from the de-energised state (``v = 0, h = 0``)."""
+    return bw_hysteresis(np.ascontiguousarray(v, dtype=np.float64), 0.0, 1.0, float(beta), float(gamma))
+
+
+def max_unit_slope(beta: float, gamma: float) -> float:
+    """``M = 2 beta / (beta + gamma)``: the largest ``dh1/dv`` on any branch (module docstring)."""
+    return 2.0 * beta / (beta + gamma)
+
+
+@njit
+def _bwh_solve(target: float, v_prev: float, h_prev: float, d1: float, ad1: float, beta: float, gamma: float,
+               offset: float, extra: float, s_min: float, steps: int) -> float:  # pragma: no cover - compiled
+    """The v with ``offset + (d1 + extra) v - h(v) = target``, h advanced from ``h_prev``."""
+    f0 = offset + (d1 + extra) * v_prev - h_prev - target
+    if f0 == 0.0:
+        return v_prev
+    a = v_prev
+    b = v_prev - f0 / s_min
+    fa = f0
+    fb = offset + (d1 + extra) * b - bw_h_update(h_prev, b - v_prev, ad1, beta, gamma) - target
+    if fa > 0.0:
+        a, b = b, a
+        fa, fb = fb, fa
+    for _ in range(steps):
+        m = 0.5 * (a + b)
+        fm = offset + (d1 + extra) * m - bw_h_update(h_prev, m - v_prev, ad1, beta, gamma) - target
+        if fm == 0.0:
+            return m
+        if fm < 0.0:
+            a = m
+            fa = fm
+        else:
+            b = m
+            fb = fm
+    if fb != fa:
+        v = a - fa * (b - a) / (fb - fa)
+        if v >= min(a, b) and v <= max(a, b):
+            return v
+    return 0.5 * (a + b)
+
+
+@register_kind("bouc-wen-hysteresis", "bw-hysteresis", "duhem")
+@dataclass(frozen=True)
+class BoucWenHysteresis:
+    """The rate-independent Bouc-Wen hysteresis in µm (module docstring).
+
+    Parameters
+    ----------
+    d1 : float
+        Piezoelectric constant, µm/V (> 0).
+    alpha, beta, gamma : float
+        Eq. (8)'s shape: ``0 <= alpha``, ``beta > |gamma|`` (1/V).
+    offset : float
+        Added to the output, µm.
+
+    Examples
+    --------
+    >>> import numpy as np, piezohyst as ph
+    >>> m = ph.models.BoucWenHysteresis(d1=0.02, alpha=0.4, beta=0.03, gamma=0.01)
+    >>> u = ph.sinusoid(1.0, 2, 0.0, 100.0, 1e-3)
+    >>> y = m.simulate(u)
+    >>> bool(np.abs(m.simulate(m.compensator().command(y)) - y).max() < 1e-9)
+    True
+    """
+
+    kind: ClassVar[str]
+    output_unit: ClassVar[str] = "um"
+    dynamic: ClassVar[bool] = False
+
+    d1: float
+    alpha: float
+    beta: float
+    gamma: float = 0.0
+    offset: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "d1", as_scalar("d1", self.d1, positive=True))
+        object.__setattr__(self, "alpha", as_scalar("alpha", self.alpha, nonnegative=True))
+        object.__setattr__(self, "beta", as_scalar("beta", self.beta, positive=True))
+        object.__setattr__(self, "gamma", as_scalar("gamma", self.gamma))
+        object.__setattr__(self, "offset", as_scalar("offset", self.offset))
+        if not self.beta > abs(self.gamma):
+            raise ValueError(f"beta must exceed |gamma| (a bounded loop), got beta={self.beta:g}, gamma={self.gamma:g}")
+
+    @property
+    def min_slope(self) -> float:
+        """``d1 (1 - alpha M)``: the smallest slope on any branch (module docstring)."""
+        return self.d1 * (1.0 - self.alpha * max_unit_slope(self.beta, self.gamma))
+
+    @property
+    def is_invertible(self) -> bool:
+        return self.min_slope > 0
+
+    def simulate(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The output (µm) for the input ``u`` (V) from the de-energised state (rate independent)."""
+        check_dt(dt, None, self.kind)
+        v = as_signal("u", u)
+        return self.offset + self.d1 * v - self.alpha * self.d1 * unit_hysteresis(v, self.beta, self.gamma)
+
+    def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        return self.simulate(u, dt)
+
+    def stepper(self, dt: float | None = None) -> "BoucWenHysteresisStepper":
+        check_dt(dt, None, self.kind)
+        return BoucWenHysteresisStepper(self)
+
+    def slope_inverse(self, kappa: float = 0.0) -> "BoucWenHysteresisInverse":
+        """Solves ``model(v) + kappa v = target`` sample by sample (module docstring)."""
+        return BoucWenHysteresisInverse(self, kappa)
+
+    def compensator(self, dt: float | None = None, *, u_range: Any = None,
+                    max_slew: float | None = None) -> "BoucWenHysteresisCompensator":
+        check_dt(dt, None, self.kind)
+        return BoucWenHysteresisCompensator(self, u_range=u_range, max_slew=max_slew)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"d1": self.d1, "alpha": self.alpha, "beta": self.beta, "gamma": self.gamma, "offset": self.offset}
+
+    @classmethod
+    def from_dict(cls, params: dict[str, Any]) -> "BoucWenHysteresis":
+        return cls(d1=params["d1"], alpha=params["alpha"], beta=params["beta"], gamma=params.get("gamma", 0.0),
+                   offset=params.get("offset", 0.0))
+
+    def __repr__(self) -> str:
+        return (f"BoucWenHysteresis(d1={self.d1:.4g} um/V, alpha={self.alpha:.4g}, beta={self.beta:.4g}/V, "
+                f"gamma={self.gamma:.4g}/V, offset={self.offset:.4g})")
+
+
+class BoucWenHysteresisStepper:
+    def __init__(self, model: BoucWenHysteresis):
+        self.model = model
+        self.reset()
+
+    def reset(self) -> None:
+        self._v = 0.0
+        self._h = 0.0
+
+    def step(self, v: float) -> float:
+        x = float(v)
+        if not math.isfinite(x):
+            raise ValueError(f"u_k must be finite, got {v!r}")
+        m = self.model
+        self._h = float(bw_h_update(self._h, x - self._v, m.alpha * m.d1, m.beta, m.gamma))
+        self._v = x
+        return m.offset + m.d1 * x - self._h
+
+
+class BoucWenHysteresisInverse:
+    """Solves ``model(v) + kappa v = target`` for v, sample by sample."""
+
+    def __init__(self, model: BoucWenHysteresis, kappa: float = 0.0):
+        s = model.min_slope + float(kappa)
+        if not s > 0:
+            raise ValueError(f"the Bouc-Wen hysteresis is not invertible: its smallest slope is {s:.4g}")
+        self.model = model
+        self.kappa = float(kappa)
+        self._s = s
+        self.reset()
+
+    def reset(self) -> None:
+        self._v = 0.0
+        self._h = 0.0
+
+    def step(self, target: float) -> float:
+        m = self.model
+        ad1 = m.alpha * m.d1
+        v = float(_bwh_solve(float(target), self._v, self._h, m.d1, ad1, m.beta, m.gamma, m.offset, self.kappa,
+                             self._s, BISECTION_STEPS))
+        self._h = float(bw_h_update(self._h, v - self._v, ad1, m.beta, m.gamma))
+        self._v = v
+        return v
+
+
+class BoucWenHysteresisCompensator(Compensator):
+    """The numerical inverse (module docstring): desired µm in, volts out."""
+
+    def __init__(self, model: BoucWenHysteresis, *, u_range: Any = None, max_slew: float | None = None):
+        super().__init__(u_range=u_range, max_slew=max_slew)
+        self.model = model
+        self._inv = BoucWenHysteresisInverse(model)
+
+    def _reset(self) -> None:
+        self._inv.reset()
+
+    def _step(self, x_d: float) -> float:
+        return self._inv.step(x_d)
