@@ -17,7 +17,7 @@ import numpy as np
 from .._validation import FloatArray, as_scalar, as_signal
 from ..models.bouc_wen import BoucWen, bw_swarm_rmse
 from ..pso import pso_minimize
-from .result import FitResult, paired_signals as _pair
+from .result import FitResult, paired_signals as _pair, unpack_data
 
 BW_NAMES = ("m", "b", "k", "d1", "alpha", "beta", "gamma")
 _BW_LOG = (True, True, True, True, False, True, False)
@@ -67,7 +67,7 @@ def _from_search(x: FloatArray) -> FloatArray:
 
 
 def fit_bouc_wen(
-    u: Any, y: Any, dt: float, bounds: dict[str, tuple[float, float]] | None = None,
+    u: Any, y: Any = None, dt: float | None = None, bounds: dict[str, tuple[float, float]] | None = None,
     seed: Any = 0, *, n_particles: int = 40, max_iter: int = 200, fit_offset: bool = True,
     delay: int = 0, polish: bool = True, stall_iter: int | None = None, progress: bool = False,
     callback: Callable[..., Any] | None = None, hold: str = "foh",
@@ -105,6 +105,7 @@ def fit_bouc_wen(
         With ``sensitivity`` per parameter and ``poorly_constrained``.
     """
     t0 = time.perf_counter()
+    u, y, dt = unpack_data(u, y, dt, need_dt=True)
     dt = as_scalar("dt", dt, positive=True)
     if hold not in ("foh", "zoh"):
         raise ValueError(f"hold must be 'foh' or 'zoh', got {hold!r}")

@@ -27,7 +27,7 @@ from ..models.pi import PrandtlIshlinskii, equal_thresholds
 from ..models.play import play_outputs
 from ..pso import pso_minimize
 from .lsq import bounded_lstsq
-from .result import FitResult, paired_signals as _pair
+from .result import FitResult, paired_signals as _pair, unpack_data
 
 
 def pi_regressors(u: FloatArray, thresholds: FloatArray) -> FloatArray:
@@ -37,7 +37,7 @@ def pi_regressors(u: FloatArray, thresholds: FloatArray) -> FloatArray:
 
 
 def fit_pi(
-    u: Any, y: Any, n: int = 20, method: str = "lsq", *,
+    u: Any, y: Any = None, n: int = 20, method: str = "lsq", *,
     thresholds: Any = None, u_max: float | None = None, fit_offset: bool = True,
     delay: int | str = 0, max_auto_delay: int = 10, margin: float | None = None, seed: Any = None, n_particles: int = 40, max_iter: int = 200,
     weight_bounds: tuple[float, float] | None = None, progress: bool = False,
@@ -47,7 +47,7 @@ def fit_pi(
 
     Parameters
     ----------
-    u, y : array_like
+    u, y : array_like, or a Dataset as ``u``
         Input (V) and output (any unit; ``rmse`` is in it). The model starts de-energised.
     n : int
         Number of play operators, thresholds by eq. (4) over ``u_max`` (default ``max|u|``).
@@ -85,6 +85,7 @@ def fit_pi(
     True
     """
     t0 = time.perf_counter()
+    u, y, _ = unpack_data(u, y)
     if method not in ("lsq", "pso"):
         raise ValueError(f"method must be 'lsq' or 'pso', got {method!r}")
     if isinstance(delay, str):

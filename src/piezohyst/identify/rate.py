@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 from .linear import Structure, fit_structure
-from .result import FitResult, paired_signals
+from .result import FitResult, paired_signals, unpack_data
 from .select import fit_model
 
 
@@ -33,7 +33,7 @@ def fit_preisach(u: Any, y: Any = None, dt: float | None = None, **options: Any)
 
 
 def fit_rate_pi(
-    u: Any, y: Any, dt: float, *, n: int = 20, u_max: float | None = None, taus: Sequence[float] | None = None,
+    u: Any, y: Any = None, dt: float | None = None, *, n: int = 20, u_max: float | None = None, taus: Sequence[float] | None = None,
     input_taus: Sequence[float] | None = None, delay: int | str = "auto", max_auto_delay: int | None = None,
     fit_offset: bool = True, margin: float | None = None,
 ) -> FitResult:
@@ -58,6 +58,7 @@ def fit_rate_pi(
     delay : int or "auto"
         Samples by which y lags u.
     """
+    u, y, dt = unpack_data(u, y, dt, need_dt=True)
     if taus is not None and input_taus is not None and len(input_taus) == 1 and delay != "auto":
         us, ys = paired_signals(u, y, 0)
         st = Structure("pi", int(n), 0, tuple(float(t) for t in taus), float(input_taus[0]), int(delay),  # type: ignore[arg-type]

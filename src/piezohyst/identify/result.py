@@ -110,3 +110,19 @@ def paired_signals(u: Any, y: Any, delay: int) -> tuple[FloatArray, FloatArray]:
 def simulate_fit(fit: FitResult, u: Any, dt: float | None = None) -> FloatArray:
     """The fitted model's output for ``u`` in the units the fit was made in (µm)."""
     return fit.predict(u, dt)
+
+
+def unpack_data(u: Any, y: Any, dt: Any = None, *, need_dt: bool = False) -> tuple[Any, Any, Any]:
+    """``(u, y, dt)`` from either arrays or one :class:`~piezohyst.data.Dataset` given as ``u``
+    (every ``fit_*`` accepts both)."""
+    from ..data import Dataset
+
+    if isinstance(u, Dataset):
+        if y is not None:
+            raise TypeError("give either a Dataset or u and y, not both")
+        return u.u, u.y, (u.dt if dt is None else dt)
+    if y is None:
+        raise TypeError("give the output y (or one Dataset instead of u)")
+    if need_dt and dt is None:
+        raise TypeError("give the sample period dt (s) (or one Dataset instead of u)")
+    return u, y, dt

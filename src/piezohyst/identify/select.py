@@ -39,7 +39,7 @@ import numpy as np
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
 from .linear import DEFAULT_MARGIN, Structure, fit_prepared, fit_structure, mean_slope, prepare
-from .result import FitResult, paired_signals
+from .result import FitResult, paired_signals, unpack_data
 
 #: Relative drop of the hold-out error a more complex candidate must bring to be preferred.
 MIN_GAIN = 0.02
@@ -260,16 +260,8 @@ def fit_model(
         every candidate with its hold-out error (µm and % of span), ``info["holdout"]`` the
         winner's, ``info["search"]`` the ranges; ``warnings`` what deserves attention.
     """
-    from ..data import Dataset
-
     t0 = time.perf_counter()
-    if isinstance(u, Dataset):
-        if y is not None:
-            raise TypeError("give either a Dataset or u and y, not both")
-        dt = u.dt if dt is None else dt
-        u, y = u.u, u.y
-    if y is None:
-        raise TypeError("fit_model needs the output y (or a Dataset)")
+    u, y, dt = unpack_data(u, y, dt)
     us, ys = paired_signals(u, y, 0)
     if np.corrcoef(us, ys)[0, 1] < 0:
         raise ValueError("the output falls as the input rises (negative correlation): negate y first")
@@ -315,6 +307,8 @@ def fit_model(
         ends = [_linear_search(sc, replace(base, thresholds=r), ranges, delay, linear, n, n_fit, kind_name,
                                statics, dt, say) for r in rules]
         best = min(ends, key=lambda c: c.score)
+        say("local moves around the best")
+        best = _polish(sc, best, ranges, delay, linear, n, kind_name)
     if "bouc-wen" in allowed and dt is not None:
         say("Bouc-Wen (PSO)")
         bw = _bouc_wen_candidate(sc, best.structure.delay if best else (0 if delay == "auto" else int(delay)),
@@ -342,6 +336,66 @@ def fit_model(
     final.warnings = _quality_warnings(final, us, ys, dt, best, span, vsets, n_fit, sc) + final.warnings
     final.time_s = time.perf_counter() - t0
     return final
+
+
+def _complexity(st: Structure) -> int:
+    """Number of free parameters a structure adds (to prefer the simpler of two close candidates)."""
+    size = {"pi": st.size, "preisach": st.size * (st.size + 1) // 2 + 2 * st.size, "bouc-wen": 3}[st.static]
+    return size + st.map_knots + len(st.taus) + (1 if st.input_tau else 0)
+
+
+def _polish(sc: _Scorer, best: _Candidate, ranges: SearchRanges, delay: Any, linear: list[str],
+            n: int | None, kind_name: str | None, rounds: int = 6) -> _Candidate:
+    """Coordinate moves from the staged search's result until none helps: the delay by one or
+    two samples, the neighbouring input lags or none, the lags' sets, the size and the map's knots.
+    A simpler structure replaces a more complex one unless that one is better by MIN_GAIN; the
+    staged search decides each dimension with the others fixed, and this undoes what an early,
+    simplified stage got wrong (e.g. a delay chosen before the right operators were there)."""
+    if not isinstance(best.structure, Structure):
+        return best
+    itaus = (0.0, *ranges.input_taus)
+    lag_sets = [(), ranges.rate_taus, ranges.creep_taus]
+    for _ in range(rounds):
+        st = best.structure
+        moves: list[Structure] = []
+        if delay == "auto":
+            moves += [replace(st, delay=d) for d in (st.delay - 2, st.delay - 1, st.delay + 1, st.delay + 2)
+                      if 0 <= d <= ranges.max_delay]
+        if sc.dt is not None and len(itaus) > 1:
+            i0 = min(range(len(itaus)), key=lambda i: abs(itaus[i] - st.input_tau))
+            moves += [replace(st, input_tau=itaus[i]) for i in {0, max(i0 - 1, 0), min(i0 + 1, len(itaus) - 1)}
+                      if itaus[i] != st.input_tau]
+            if kind_name != "rate-dependent" or st.static != "pi":
+                moves += [replace(st, taus=t) for t in lag_sets if t != st.taus and (t or st.input_tau or st.map_knots
+                                                                                       or kind_name != "rate-dependent")]
+            else:
+                moves += [replace(st, taus=t) for t in lag_sets if t and t != st.taus]
+        if st.static == "pi" and not n:
+            moves += [replace(st, size=s) for s in (10, 20, 40) if s != st.size and sc.n_fit >= 25 * s]
+        if st.static == "pi" and "asymmetric-pi" in linear:
+            moves += [replace(st, map_knots=k) for k in (0, 2, 4, 8) if k != st.map_knots
+                      and (k or kind_name != "asymmetric-pi")]
+        if st.static == "preisach" and not n:
+            moves += [replace(st, size=s) for s in (8, 12, 16) if s != st.size]
+        improved = False
+        for mv in moves:
+            if not _allowed_structure(mv, linear, kind_name):
+                continue
+            c = sc.linear(mv)
+            simpler = _complexity(mv) < _complexity(best.structure)
+            if (simpler and c.score <= best.score / (1.0 - MIN_GAIN)) or c.score < (1.0 - MIN_GAIN) * best.score \
+                    or (not simpler and _complexity(mv) == _complexity(best.structure) and c.score < best.score):
+                best, improved = c, True
+        if not improved:
+            break
+    return best
+
+
+def _allowed_structure(st: Structure, linear: list[str], kind_name: str | None) -> bool:
+    """Whether the kinds the caller allows include the one ``st`` makes."""
+    if kind_name is not None:
+        return st.kind == kind_name or (kind_name == "rate-dependent" and st.rate_dependent and not st.map_knots)
+    return st.kind in linear
 
 
 def _delays_near(d0: int, max_delay: int) -> list[int]:

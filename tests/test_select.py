@@ -1,0 +1,104 @@
+"""Model selection on held-out data (issue 11, items 4 and 6): ranges from the data, the choice,
+the refit, the table of candidates, and the warnings."""
+
+import numpy as np
+import pytest
+
+import piezohyst as ph
+from piezohyst.identify.select import excitation_band, search_ranges
+
+DT = 1e-3
+
+
+def record(freq=1.0, seconds=8.0, lo=0.0, hi=100.0):
+    """Two full-range cycles, then cycles of decaying amplitude (nested minor loops)."""
+    n = int(seconds / DT)
+    t = np.arange(n) * DT
+    full = int(round(2.0 / (freq * DT)))
+    amp = np.concatenate([np.ones(full), np.linspace(1.0, 0.4, max(n - full, 0))])[:n]
+    return 0.5 * (lo + hi) - 0.5 * (hi - lo) * np.cos(2 * np.pi * freq * t) * amp
+
+
+def test_ranges_follow_the_data_not_a_stage():
+    u = record(freq=2.0)
+    f_lo, f_hi = excitation_band(u, DT)
+    assert 1.0 <= f_lo <= 2.0 <= f_hi <= 4.0
+    r = search_ranges(u, DT, n_fit=u.size)
+    # lags from a few samples up to half the record, two per decade; delays up to 5 % of the
+    # fastest period; input lags below 0.2 / (2 pi f_hi)
+    assert r.creep_taus[0] >= 2 * DT and r.creep_taus[-1] <= 0.5 * u.size * DT
+    assert all(b / a == pytest.approx(np.sqrt(10)) for a, b in zip(r.creep_taus, r.creep_taus[1:]))
+    assert r.max_delay >= 5 and r.max_delay * DT <= max(0.05 / f_hi, 5 * DT) + DT
+    assert all(t <= 0.2 / (2 * np.pi * f_hi) for t in r.input_taus)
+    # the same record at 10x the sample rate: the same ranges in seconds
+    r10 = search_ranges(np.repeat(u, 10), DT / 10, n_fit=u.size * 10)
+    assert r10.creep_taus[-1] == pytest.approx(r.creep_taus[-1], rel=1e-6)
+
+
+def test_exact_model_is_found_and_refitted_on_everything():
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(10, 100.0), np.linspace(0.02, 0.002, 10), offset=0.4)
+    u = record()
+    y = true.simulate(u)
+    fit = ph.fit_model(u, y, DT)
+    assert fit.rmse < 1e-9 * np.ptp(y)
+    assert fit.n_samples == u.size  # refitted on the whole record
+    table = fit.info["candidates"]
+    assert sum(c["chosen"] for c in table) == 1
+    assert fit.info["holdout"]["rmse"] == min(c["holdout_rmse"] for c in table) or fit.info["holdout"]["rmse"] < 1e-9
+    assert fit.warnings == []
+
+
+def test_delay_is_found_on_held_out_data():
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(10, 100.0), np.linspace(0.02, 0.002, 10))
+    u = record(freq=3.0)
+    y = np.concatenate([np.zeros(7), true.simulate(u)[:-7]])
+    fit = ph.fit_model(u, y, DT, kind="pi")
+    assert fit.delay == 7
+
+
+def test_validation_sets_choose_and_are_reported():
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(10, 100.0), np.linspace(0.02, 0.002, 10))
+    u = record()
+    y = true.simulate(u)
+    uv = record(freq=2.5, seconds=2.0)
+    fit = ph.fit_model(u, y, DT, kind="pi", validation=[(uv, true.simulate(uv)), (u, y, u.size // 2)])
+    assert fit.info["holdout"]["on"] == "validation data"
+    assert len(fit.info["holdout"]["per_set_rmse"]) == 2
+    with pytest.raises(ValueError, match="first scored sample"):
+        ph.fit_model(u, y, DT, kind="pi", validation=[(u, y, u.size + 5)])
+
+
+def test_kind_names_and_refusals():
+    u = record(seconds=3.0)
+    y = 0.02 * u
+    for kind in ("pi", "preisach", "asymmetric-pi", "rate-dependent", "bouc-wen-hysteresis"):
+        assert ph.fit_model(u, y + 0.001 * np.sin(u), DT, kind=kind).model.is_invertible
+    with pytest.raises(ValueError, match="unknown model kind"):
+        ph.fit_model(u, y, DT, kind="maxwell")
+    with pytest.raises(ValueError, match="sample period"):
+        ph.fit_model(u, y, None, kind="rate-dependent")
+    with pytest.raises(ValueError, match="negate y"):
+        ph.fit_model(u, -y, DT)
+    with pytest.raises(ValueError, match="holdout"):
+        ph.fit_model(u, y, DT, holdout=0.9)
+
+
+def test_a_loop_that_falls_after_reversals_is_flagged():
+    # first partial sum negative: right after each reversal the output moves against the input
+    pi = ph.PrandtlIshlinskii(np.arange(8) / 8 * 50.0, np.array([-0.3, 1, 1, 1, 1, 1, 1, 1]) * 0.004)
+    u = record(freq=1.0, seconds=8.0)
+    fit = ph.fit_model(u, pi.simulate(u), DT, kinds=["prandtl-ishlinskii", "rate-dependent"])
+    text = " ".join(fit.warnings)
+    assert "falling" in text or "against" in text or "old way" in text, fit.warnings
+    # and its compensator stays bounded: the inverse's gain is at most 1 / margin
+    x = ph.sinusoid(1.0, 2, 5.0, 15.0, DT)
+    cmd = fit.model.compensator(DT).command(x)
+    assert np.all(np.isfinite(cmd)) and np.abs(np.diff(cmd[10:])).max() < 5.0
+
+
+def test_a_model_that_misses_the_loop_shape_is_flagged():
+    # a strongly asymmetric stage seen through a plain P-I model: large, direction-dependent error
+    u = record(freq=1.0, seconds=6.0)
+    y = 0.02 * u + 0.6 * np.tanh((u - 50.0) / 20.0) + 0.3 * np.sign(np.gradient(u)) * (u / 100.0) ** 3
+    fit = ph.fit_model(u, y, DT, kind="pi", n=5)
+    assert any("direction" in w or "hold-out error" in w for w in fit.warnings), fit.warnings
