@@ -10,7 +10,9 @@ asymmetric P-I, Preisach and rate-dependent models behind one interface
 commissioning of any stage (:func:`commission`).
 
 The names below are imported on first use, so ``import piezohyst`` (and ``piezohyst --help``)
-does not pay for numba and scipy until something needs them.
+does not pay for numba and scipy until something needs them. No public function shares its name
+with a submodule (importing the submodule would replace the function on the package): hence
+``commission`` lives in :mod:`piezohyst.commissioning`.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from ._version import __version__
 #: public name -> the module that defines it
 _LAZY: dict[str, str] = {
     "LoopFigures": "analysis", "loop_figures": "analysis",
-    "CommissionedController": "commission", "commission": "commission",
+    "CommissionedController": "commissioning", "commission": "commissioning",
     "BoucWenFeedforward": "control", "InversePIFeedforward": "control", "PID": "control",
     "TrackingResult": "control", "UnstableLoopError": "control", "track": "control",
     "DataError": "data", "Dataset": "data", "load_dataset": "data", "load_piezo_dbo": "data",
@@ -64,7 +66,7 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from . import control, data, experiments, identify, modelio, models, plots, signals  # noqa: F401
     from .analysis import LoopFigures, loop_figures  # noqa: F401
-    from .commission import CommissionedController, commission  # noqa: F401
+    from .commissioning import CommissionedController, commission  # noqa: F401
     from .control import (BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult,  # noqa: F401
                           UnstableLoopError, track)
     from .data import DataError, Dataset, load_dataset, load_piezo_dbo, save_dataset  # noqa: F401

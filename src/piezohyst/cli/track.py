@@ -18,7 +18,7 @@ def cmd_track(args: argparse.Namespace) -> int:
 
     rig = rig_from_args(args)
     if args.method == "best":
-        from ..commission import commission
+        from ..commissioning import commission
 
         if args.model:
             raise UsageError("--method best identifies on the rig itself; drop --model")

@@ -239,7 +239,7 @@ def run_paper_experiment(
     ablation: dict[str, dict[float, TrackingResult]] = {}
     ctl = None
     if beyond:
-        from ..commission import commission
+        from ..commissioning import commission
 
         t0 = time.perf_counter()
         say("piezohyst: commissioning (identification run, fit, tuning)")
