@@ -263,9 +263,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         n_id = None
     ds = open_loop(plant, cmd)
     if n_id is not None:
-        # fit on the identification part, choose on the rest (simulated from the start)
-        fit = fit_model(ds.u[:n_id], ds.y[:n_id], dt, "auto", kinds=COMMISSION_KINDS, n=n,
-                        validation=[(ds.u, ds.y, n_id)])
+        # fit on the identification part, choose on the rest; the winner is refitted on all of it
+        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=COMMISSION_KINDS, n=n, holdout=int(ds.u.size - n_id))
     else:
         fit = fit_model(ds.u, ds.y, dt, "auto", kinds=COMMISSION_KINDS, n=n)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain)

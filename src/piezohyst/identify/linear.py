@@ -151,46 +151,83 @@ class Prepared:
 
     structure: Structure
     v: FloatArray
-    base: FloatArray  # (N, p + 1 + m + 1)
+    base: FloatArray  # (ceil(N / stride), p + 1 + m + 1): the record's rows 0, stride, 2 stride, ...
     p: int
     m: int
     a_lag: FloatArray
     decode_info: dict[str, Any]
-    _gram: dict[tuple[int, int], FloatArray] = field(default_factory=dict, repr=False)
+    stride: int = 1
+    _gram: dict[int, FloatArray] = field(default_factory=dict, repr=False)
 
-    def gram(self, rows: int, stride: int = 1) -> FloatArray:
-        """``B' B`` over the base rows ``0, stride, 2 stride, ... < rows``, from the nearest cached
-        row count (a shorter set of rows only removes the last rows' share)."""
-        g = self._gram.get((rows, stride))
+    def n_rows(self, rows: int) -> int:
+        """Stored rows among the record's rows ``[0, rows)``."""
+        return -(-rows // self.stride)
+
+    def gram(self, rows: int) -> FloatArray:
+        """``B' B`` over the stored rows among the record's rows ``[0, rows)``, from the nearest
+        cached count (a shorter set of rows only removes the last rows' share)."""
+        k = self.n_rows(rows)
+        g = self._gram.get(k)
         if g is not None:
             return g
-        bigger = [r for (r, s) in self._gram if s == stride and r > rows]
+        bigger = [r for r in self._gram if r > k]
         if bigger:
             r0 = min(bigger)
-            first = -(-rows // stride) * stride  # the first strided row at or after `rows`
-            tail = self.base[first:r0:stride]
-            if r0 - rows <= 0.2 * rows:
-                g = self._gram[(r0, stride)] - tail.T @ tail
-                self._gram[(rows, stride)] = g
+            if r0 - k <= 0.2 * k:
+                tail = self.base[k:r0]
+                g = self._gram[r0] - tail.T @ tail
+                self._gram[k] = g
                 return g
-        b = self.base[:rows:stride]
+        b = self.base[:k]
         g = b.T @ b
-        self._gram[(rows, stride)] = g
+        self._gram[k] = g
         return g
 
 
-def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray | None = None) -> Prepared:
+def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray | None = None,
+            cache: dict[Any, Any] | None = None, stride: int = 1) -> Prepared:
     """Regressors of structure ``st`` for the input ``u`` (from rest).
 
     ``u_ref`` (default ``u``) is the part of the record the structure's data-derived settings
     (thresholds, grid) come from: the fitting rows, so nothing is read off held-out data.
+    ``cache`` (a dict kept by the caller for one record) shares the blocks structures have in
+    common: the lagged input, the static part's columns, each lag's column. With ``stride > 1``
+    only every ``stride``-th row is kept (the states are still computed at every sample).
     """
     ref = u if u_ref is None else u_ref
     if st.rate_dependent and dt is None:
         raise ValueError("a rate-dependent structure needs the sample period dt")
-    b = lag_factor(st.input_tau, dt) if st.input_tau else 0.0
-    v = first_order_lag(u, b) if b else np.array(u, dtype=np.float64)
-    v_ref = first_order_lag(ref, b) if b else np.asarray(ref, dtype=np.float64)
+    memo: dict[Any, Any] = {} if cache is None else cache
+    key_v = ("v", st.input_tau, ref.size)
+    if key_v not in memo:
+        b = lag_factor(st.input_tau, dt) if st.input_tau else 0.0
+        v_all = first_order_lag(u, b) if b else np.array(u, dtype=np.float64)
+        v_ref_all = first_order_lag(ref, b) if b else np.asarray(ref, dtype=np.float64)
+        memo[key_v] = (v_all, v_ref_all)
+    v, v_ref = memo[key_v]
+    key_s = ("static", st.static, st.size, st.thresholds, st.u_max, st.shape, st.input_tau, ref.size)
+    if key_s in memo:
+        static_cols, floor, info = memo[key_s]
+    else:
+        static_cols, floor, info = _static_columns(v, v_ref, st)
+        memo[key_s] = (static_cols, floor, info)
+    a_lag = np.exp(-dt / np.asarray(st.taus, dtype=np.float64)) if st.taus else np.zeros(0)
+    p, m = static_cols.shape[1], a_lag.size
+    rows = slice(None, None, stride)
+    base = np.empty((-(-u.size // stride), p + m + 2))
+    base[:, :p] = static_cols[rows]
+    base[:, p] = floor[rows]
+    for i, al in enumerate(a_lag):
+        key_l = ("lag", st.input_tau, float(al), ref.size)
+        if key_l not in memo:
+            memo[key_l] = first_order_lag(v, float(al))
+        base[:, p + 1 + i] = memo[key_l][rows]
+    base[:, -1] = 1.0
+    return Prepared(st, v, base, p, m, a_lag, info, stride)
+
+
+def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure) -> tuple[FloatArray, FloatArray, dict[str, Any]]:
+    """The static part's free columns, its floor column and what decoding needs."""
     info: dict[str, Any] = {}
     if st.static == "pi":
         if st.thresholds == "eq4":
@@ -219,15 +256,7 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
         static_cols = preisach_outputs(np.ascontiguousarray(v), a, bb, 1.0 / d, z0)
         floor = np.array(v, dtype=np.float64)
         info["grid"] = (lo, hi)
-    a_lag = np.exp(-dt / np.asarray(st.taus, dtype=np.float64)) if st.taus else np.zeros(0)
-    p, m = static_cols.shape[1], a_lag.size
-    base = np.empty((u.size, p + m + 2))
-    base[:, :p] = static_cols
-    base[:, p] = floor
-    for i, al in enumerate(a_lag):
-        base[:, p + 1 + i] = first_order_lag(v, float(al))
-    base[:, -1] = 1.0
-    return Prepared(st, v, base, p, m, a_lag, info)
+    return static_cols, floor, info
 
 
 def _map_columns(y: FloatArray, knots: FloatArray, centre: float) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -283,11 +312,11 @@ def map_knots_for(y: FloatArray, count: int) -> tuple[FloatArray, float]:
 
 @njit
 def _tmatvec(b: FloatArray, rows: int, y: FloatArray, stride: int) -> FloatArray:  # pragma: no cover - compiled
-    """``b[:rows:stride].T @ y[::stride]``, single-threaded (BLAS threads only contend here)."""
+    """``b[:rows].T @ y[::stride]``, single-threaded (BLAS threads only contend on a shared machine)."""
     q = b.shape[1]
     out = np.zeros(q)
-    for k in range(0, rows, stride):
-        yk = y[k]
+    for k in range(rows):
+        yk = y[k * stride]
         for j in range(q):
             out[j] += b[k, j] * yk
     return out
@@ -339,27 +368,29 @@ def _design(pre: Prepared, margin: float, fit_offset: bool) -> tuple[FloatArray,
 
 
 def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
-                 margin: float, fit_offset: bool = True, predict: tuple[int, int] | None = None,
-                 stride: int = 1) -> tuple[Any, dict[str, Any], FloatArray]:
+                 margin: float, fit_offset: bool = True,
+                 predict: tuple[int, int] | None = None) -> tuple[Any, dict[str, Any], FloatArray]:
     """The best parameters of ``pre.structure`` on base rows ``[0, rows)`` paired with ``y``
     (``len(y) == rows``; the caller applies the delay). Returns the model, what the solve saw,
     and the model's prediction over base rows ``predict = (start, stop)`` (default all; µm, the
-    regressors times the parameters: the same numbers the model's ``simulate`` gives). With
-    ``stride > 1`` the fit uses every ``stride``-th row only (a model search on a long record:
-    the normal equations of a subsample of a smooth record are those of the whole, to within what
-    the choice among candidates needs)."""
+    regressors times the parameters: the same numbers the model's ``simulate`` gives). A
+    :class:`Prepared` with ``stride > 1`` fits on every ``stride``-th row only (a model search on a
+    long record: the normal equations of a subsample of a smooth record are those of the whole, to
+    within what the choice among candidates needs) and predicts those rows of ``predict``."""
     st, p, m = pre.structure, pre.p, pre.m
     yy = np.asarray(y, dtype=np.float64)
     t, shift, lb, ub, ne = _design(pre, margin, fit_offset)
-    gb = pre.gram(rows, stride)
-    bty = _tmatvec(pre.base, rows, np.ascontiguousarray(yy), stride)
+    stride = pre.stride
+    k_rows = pre.n_rows(rows)
+    gb = pre.gram(rows)
+    bty = _tmatvec(pre.base, k_rows, np.ascontiguousarray(yy), stride)
     # rhs = y - base @ shift; A = base @ T (+ the map's columns)
     gram = t.T @ gb @ t
     atb = t.T @ (bty - gb @ shift)
     knots = centre = None
     if st.map_knots:
         ys = yy[::stride]
-        bmat = pre.base[:rows:stride]
+        bmat = pre.base[:k_rows]
         knots, centre = map_knots_for(ys, st.map_knots)
         mc, const, hi = _map_columns(ys, knots, centre)
         rhs_extra = ys - bmat @ shift - const
@@ -407,8 +438,8 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
         if dt is None:
             raise ValueError("a rate-dependent structure needs dt")
         model = RateDependent(static, np.asarray(st.taus, dtype=np.float64), c, dt, input_tau=st.input_tau)
-    start, stop = predict if predict is not None else (0, pre.base.shape[0])
-    inner_pred = _matvec(pre.base, start, stop, coef)
+    start, stop = predict if predict is not None else (0, pre.base.shape[0] * stride)
+    inner_pred = _matvec(pre.base, pre.n_rows(start), pre.n_rows(stop), coef)
     pred = inner_pred
     if st.map_knots:
         omap = _decode_map(tau_map, knots, centre)  # type: ignore[arg-type]

@@ -134,6 +134,7 @@ class _Scorer:
         self.tried: list[_Candidate] = []
         self._prep: dict[Any, Any] = {}
         self._done: dict[Structure, _Candidate] = {}
+        self._blocks: dict[Any, Any] = {}
 
     def score_model(self, model: Any, delay: int, pred_train: FloatArray | None) -> tuple[float, list[float]]:
         if not self.validation:
@@ -155,20 +156,21 @@ class _Scorer:
         key = replace(st, delay=0)
         pre = self._prep.get(key)
         if pre is None:
-            pre = prepare(self.u, self.dt, st, u_ref=self.u[: self.n_fit])
+            pre = prepare(self.u, self.dt, st, u_ref=self.u[: self.n_fit], cache=self._blocks, stride=self.stride)
             self._prep[key] = pre
         t0 = time.perf_counter()
         d, n = st.delay, self.u.size
         if self.validation:
             model, info, _ = fit_prepared(pre, self.y[d:self.n_fit], self.n_fit - d, self.dt, margin=self.margin,
-                                          predict=(0, 1), stride=self.stride)
+                                          predict=(0, 1))
             score, per = self.score_model(model, d, None)
             fit_rmse = float("nan")
         else:
             # prediction of sample k is row k - d: rows [n_fit - d, n - d) score the held-out samples
             model, info, pred = fit_prepared(pre, self.y[d:self.n_fit], self.n_fit - d, self.dt, margin=self.margin,
-                                             predict=(self.n_fit - d, n - d), stride=self.stride)
-            e = self.y[self.n_fit:] - pred
+                                             predict=(self.n_fit - d, n - d))
+            first = pre.n_rows(self.n_fit - d) * pre.stride  # the stored rows' record indices
+            e = self.y[first + d::pre.stride][: pred.size] - pred
             score = float(np.sqrt(np.mean(e**2)))
             per = [score]
             fit_rmse = float("nan")
@@ -209,7 +211,7 @@ def _delay_search(sc: _Scorer, base: Structure, lo: int, hi: int) -> _Candidate:
 
 def fit_model(
     u: Any, y: Any = None, dt: float | None = None, kind: str = "auto", *,
-    validation: Sequence[Any] | None = None, holdout: float = HOLDOUT, delay: int | str = "auto",
+    validation: Sequence[Any] | None = None, holdout: float | int = HOLDOUT, delay: int | str = "auto",
     n: int | None = None, kinds: Sequence[str] | None = None, margin: float | None = None,
     taus: Sequence[float] | None = None, input_taus: Sequence[float] | None = None,
     max_delay: int | None = None, statics: Sequence[str] = ("pi", "preisach", "bouc-wen"),
@@ -233,8 +235,10 @@ def fit_model(
         Held-out sets to choose on instead of the later part of the training record: each a
         Dataset, a ``(u, y)`` pair, or ``(u, y, first)`` with ``first`` the first sample scored
         (the set is simulated from its start). The score is the mean of their RMSEs.
-    holdout : float
-        Fraction of the training record held out when ``validation`` is not given.
+    holdout : float or int
+        What of the training record is held out when ``validation`` is not given: a fraction of
+        it (its end), or, as an integer, the number of samples at its end (an experiment made
+        of an identification part and a validation part, as ``commission`` runs).
     delay : int or "auto"
         Samples by which y lags u, or searched.
     n : int, optional
@@ -271,9 +275,15 @@ def fit_model(
     kind_name = allowed[0] if kind != "auto" else None
     vsets = [_as_validation(v, i) for i, v in enumerate(validation or [])]
     n_total = us.size
-    n_fit = n_total if vsets else int(round((1.0 - holdout) * n_total))
-    if not vsets and not (0.05 <= holdout <= 0.5):
-        raise ValueError(f"holdout must be between 0.05 and 0.5 of the record, got {holdout}")
+    if isinstance(holdout, (int, np.integer)) and not isinstance(holdout, bool):
+        if not 20 <= holdout <= n_total - 50:
+            raise ValueError(f"holdout of {holdout} samples leaves too little to fit on or to choose on "
+                             f"({n_total} samples)")
+        n_fit = n_total if vsets else n_total - int(holdout)
+    else:
+        if not vsets and not (0.05 <= holdout <= 0.5):
+            raise ValueError(f"holdout must be between 0.05 and 0.5 of the record, got {holdout}")
+        n_fit = n_total if vsets else int(round((1.0 - holdout) * n_total))
     if n_fit < 50 or (not vsets and n_total - n_fit < 20):
         raise ValueError(f"{n_total} samples are too few to fit on one part and choose on another")
     if margin is None:
@@ -328,8 +338,8 @@ def fit_model(
          "fit_rmse": c.fit_rmse, "n_parameters": c.n_parameters, "per_set_rmse": c.per_set,
          "chosen": c is best} for c in sc.tried]
     final.info["holdout"] = {"rmse": best.score, "percent_of_span": 100.0 * best.score / span if span > 0 else None,
-                             "on": "validation data" if vsets else f"the last {100 * (1 - n_fit / n_total):.0f} % "
-                             "of the training record", "per_set_rmse": best.per_set}
+                             "on": "validation data" if vsets else f"the last {n_total - n_fit} samples "
+                             f"({100 * (1 - n_fit / n_total):.0f} %) of the training record", "per_set_rmse": best.per_set}
     final.info["search"] = ranges.to_dict()
     final.info["chosen"] = best.label
     final.method = f"selection on held-out data: {best.label}"
