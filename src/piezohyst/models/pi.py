@@ -147,7 +147,12 @@ class PrandtlIshlinskii:
 
     # -- simulation -----------------------------------------------------------------------
     def simulate(self, u: Any) -> FloatArray:
-        """Output of eq. (3) for the input signal ``u``, starting from ``initial_state``."""
+        """Output of eq. (3) for the input signal ``u``, starting from ``initial_state``.
+
+        Runs :func:`piezohyst.models.play.pi_simulate`: event-driven (work proportional to
+        the operators that move) on smooth inputs, the dense loop on inputs such as white
+        noise; the two agree to rounding.
+        """
         x = as_signal("u", u)
         z = np.array(self.initial_state)
         return pi_simulate(x, self.thresholds, self.weights, z, self.input_offset, self.offset)
@@ -223,8 +228,9 @@ class PrandtlIshlinskii:
 class PIStepper:
     """Streaming P-I evaluation: one input sample in, one output sample out.
 
-    Runs :func:`piezohyst.models.play.pi_step`, the kernel that :meth:`PrandtlIshlinskii.simulate`
-    loops over, so the two give identical outputs.
+    Runs :func:`piezohyst.models.play.pi_step`, the kernel that
+    :func:`~piezohyst.models.play.pi_simulate_dense` loops over, so the two give identical
+    outputs; :meth:`PrandtlIshlinskii.simulate` agrees with both to rounding.
     """
 
     __slots__ = ("model", "_r", "_w", "_z", "_in", "_out")
