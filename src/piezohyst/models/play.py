@@ -372,14 +372,29 @@ def pi_simulate(
 
 
 @njit
-def play_outputs(u: FloatArray, r: FloatArray, z: FloatArray) -> FloatArray:  # pragma: no cover
-    """All operator outputs ``H_ri[u](k)`` as an (N, n) matrix (the regressors of a P-I fit)."""
-    n = u.shape[0]
-    m = r.shape[0]
-    out = np.empty((n, m))
-    for k in range(n):
+def _play_outputs_into(
+    u: FloatArray, r: FloatArray, z: FloatArray, out: FloatArray, colsum: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """The operator outputs into ``out`` (rows = samples), their column sums added to ``colsum``."""
+    for k in range(u.shape[0]):
         play_step(u[k], r, z)
-        for i in range(m):
+        for i in range(r.shape[0]):
+            out[k, i] = z[i]
+            colsum[i] += z[i]
+
+
+@njit
+def play_outputs(u: FloatArray, r: FloatArray, z: FloatArray) -> FloatArray:  # pragma: no cover
+    """All operator outputs ``H_ri[u](k)`` as an (N, n) matrix (the regressors of a P-I fit).
+
+    Dense on purpose: every element of the matrix is written whatever the input, and writing
+    it is the cost (``make bench`` compares it with merely filling a matrix of that size), so
+    the event-driven bookkeeping would save nothing here.
+    """
+    out = np.empty((u.shape[0], r.shape[0]))
+    for k in range(u.shape[0]):
+        play_step(u[k], r, z)
+        for i in range(r.shape[0]):
             out[k, i] = z[i]
     return out
 
@@ -534,11 +549,12 @@ def pi_gram(
     gram = np.zeros((m, m))
     zty = np.zeros((m, nd))
     zsum = np.zeros(m)
+    buf = np.empty((min(chunk_rows, common), m))  # one buffer, refilled chunk after chunk
     for a in range(0, common, chunk_rows):
         b = min(common, a + chunk_rows)
-        zc = play_outputs(us[a:b], r, z)  # z carries the states on
+        zc = buf[: b - a]
+        _play_outputs_into(us[a:b], r, z, zc, zsum)  # z carries the states on
         gram += zc.T @ zc
-        zsum += zc.sum(axis=0)
         ycols = np.stack([ys[a + d:b + d] for d in d_arr], axis=1)
         zty += zc.T @ ycols
     # the last dmax rows belong to the smaller delays only (u[k] with y[k + d], k + d < N)
