@@ -144,6 +144,25 @@ def test_automatic_choice_equals_the_dense_loop(setup, u):
     np.testing.assert_allclose(za, zd, rtol=0, atol=1e-12 * (np.abs(u).max() + r.max() + np.abs(z0).max() + 5))
 
 
+@given(setup=pi_setups(), u=piecewise_signals(), extra=st.integers(0, 40), k0=st.integers(0, 5))
+def test_four_samples_at_once_equals_the_dense_loop(setup, u, extra, k0):
+    # the dense loop of the automatic choice composes four clamps into one: the states must come
+    # out bit for bit (only min and max), the outputs to rounding; also past 32 operators
+    r, w, z0 = setup
+    if extra:
+        r = np.concatenate([r, r.max() + np.arange(1, extra + 1)])
+        w = np.concatenate([w, np.linspace(-1, 1, extra)])
+        z0 = np.concatenate([z0, np.full(extra, z0[-1])])
+    k0 = min(k0, u.size)
+    zd, zf = z0.copy(), z0.copy()
+    yd = P.pi_simulate_dense(u[k0:], r, w, zd, 1.5, -2.0)
+    yf = np.full(u.size, np.nan)
+    P._pi_dense_fast_into(u, r, w, zf, 1.5, -2.0, yf, k0, u.size)
+    np.testing.assert_array_equal(zf, zd)
+    np.testing.assert_allclose(yf[k0:], yd, rtol=0, atol=1e-12 * r.size * _scale(u - 1.5, r, w, z0, -2.0))
+    assert np.isnan(yf[:k0]).all()  # samples before k0 untouched
+
+
 def test_event_driven_kernel_unsorted_thresholds_and_long_records(rng):
     # unsorted thresholds: no prefix structure, so the kernel must stay on the dense loop
     r = rng.permutation(np.arange(8.0))
