@@ -627,7 +627,8 @@ def pi_gram(
     gram = np.zeros((m, m))
     zty = np.zeros((m, nd))
     zsum = np.zeros(m)
-    buf = np.empty((min(chunk_rows, common), m))  # one buffer, refilled chunk after chunk
+    # one buffer, refilled chunk after chunk; column-major, which BLAS multiplies fastest as Z'Z
+    buf = np.empty((min(chunk_rows, common), m), order="F")
     for a in range(0, common, chunk_rows):
         b = min(common, a + chunk_rows)
         zc = buf[: b - a]
