@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from .._validation import FloatArray, as_scalar, as_signal, frozen
-from .play import pi_simulate, pi_step
+from .play import finite_signal, pi_simulate, pi_step
 
 
 def equal_thresholds(n: int = 20, u_max: float = 100.0) -> FloatArray:
@@ -153,7 +153,7 @@ class PrandtlIshlinskii:
         the operators that move) on smooth inputs, the dense loop on inputs such as white
         noise; the two agree to rounding.
         """
-        x = as_signal("u", u)
+        x = finite_signal("u", u)
         z = np.array(self.initial_state)
         return pi_simulate(x, self.thresholds, self.weights, z, self.input_offset, self.offset)
 
