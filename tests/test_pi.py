@@ -172,3 +172,23 @@ def test_parameters_are_read_only():
     model = pv.pi_model()
     with pytest.raises(ValueError):
         model.weights[0] = 3.0
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_simulate_refuses_non_finite_input(bad):
+    model = pv.pi_model()
+    u = np.linspace(0, 100, 50)
+    u[17] = bad
+    with pytest.raises(ValueError, match="u contains 1 non-finite value.*first at index 17"):
+        model.simulate(u)
+
+
+def test_simulate_takes_any_array_like():
+    # lists, integers, strided views: the same output as the float64 array
+    model = pv.pi_model()
+    u = np.arange(0, 100, 3)
+    ref = model.simulate(u.astype(float))
+    np.testing.assert_array_equal(model.simulate(list(u)), ref)
+    np.testing.assert_array_equal(model.simulate(np.repeat(u.astype(float), 2)[::2]), ref)
+    with pytest.raises(ValueError, match="u must be 1-D"):
+        model.simulate(np.zeros((3, 2)))
