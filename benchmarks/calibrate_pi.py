@@ -55,8 +55,8 @@ def main() -> None:
         y = np.empty(n)
         for name, u in records(n, rng).items():
             turns, moves = P.event_work(u, r)
-            te = best(lambda: P._pi_events_into(u, r, w, np.zeros(m), 0.0, 0.0, y, 0))
-            td = best(lambda: P._pi_dense_fast_into(u, r, w, np.zeros(m), 0.0, 0.0, y, 0, n))
+            te = best(lambda u=u, r=r, w=w, m=m, y=y: P._pi_events_into(u, r, w, np.zeros(m), 0.0, 0.0, y, 0))
+            td = best(lambda u=u, r=r, w=w, m=m, y=y: P._pi_dense_fast_into(u, r, w, np.zeros(m), 0.0, 0.0, y, 0, n))
             rows.append((m, name, turns, moves, te / n * 1e9, td / n * 1e9))
     a = np.array([[1.0, t, mv] for _, _, t, mv, _, _ in rows])
     ev = np.array([row[4] for row in rows])

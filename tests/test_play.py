@@ -65,7 +65,7 @@ def test_refuses_2d():
 
 
 # -- the event-driven P-I kernel against the dense loop ------------------------------------------
-from piezohyst.models import play as P  # noqa: E402
+from piezohyst.models import play as P
 
 
 @st.composite
@@ -234,6 +234,23 @@ def test_pi_gram_equals_the_dense_matrix(setup, u, chunk, delays):
         np.testing.assert_allclose(ata, a.T @ a, rtol=0, atol=1e-12 * scale)
         np.testing.assert_allclose(aty, a.T @ yd, rtol=0, atol=1e-12 * scale)
         assert nn == n - d and yty == g.yty[i]
+
+
+@pytest.mark.parametrize("m, chunk", [(70, 100), (70, None), (64, None)])
+def test_pi_gram_with_many_operators(rng, m, chunk):
+    # past 64 operators pi_gram goes through BLAS chunk by chunk: the same sums
+    u = np.cumsum(rng.normal(0, 2, 3000))
+    y = rng.normal(size=u.size)
+    r = np.sort(rng.uniform(0, 30, m))
+    z0 = np.zeros(m)
+    g = P.pi_gram(u, r, y, delays=[0, 3], chunk_rows=chunk)
+    z = P.play_outputs(u, r, z0.copy())
+    for i, d in enumerate([0, 3]):
+        zd, yd = z[: u.size - d], y[d:]
+        scale = (np.abs(zd).max() + 1) ** 2 * u.size
+        np.testing.assert_allclose(g.gram[i], zd.T @ zd, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(g.zty[i], zd.T @ yd, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(g.zsum[i], zd.sum(axis=0), rtol=0, atol=1e-12 * scale)
 
 
 def test_pi_gram_gives_the_least_squares_fit(rng):

@@ -121,14 +121,14 @@ def _pi_dense_fast_into(
             y[k + 2] = a2 + out_off
             y[k + 3] = a3 + out_off
             k += 4
-    for k in range(k, k1):
-        xs = u[k] - in_off
+    for q in range(k, k1):
+        xs = u[q] - in_off
         acc = 0.0
         for i in range(m):
             zi = min(max(z[i], xs - r[i]), xs + r[i])
             z[i] = zi
             acc += w[i] * zi
-        y[k] = acc + out_off
+        y[q] = acc + out_off
 
 
 @njit
@@ -524,7 +524,51 @@ def play_operator(x: object, r: float, y0: float = 0.0) -> FloatArray:
 
 
 # -- streamed normal equations -------------------------------------------------------------------
-_CHUNK_BYTES = 16 * 2**20  # the operator outputs held at once by pi_gram (one chunk of rows)
+_CHUNK_BYTES = 16 * 2**20  # the operator outputs held at once by pi_gram's BLAS path
+# Up to this many operators pi_gram accumulates in one compiled, single-threaded pass (blocks of
+# _GRAM_BLOCK rows kept in cache); above it, chunk by chunk through BLAS, whose blocked matrix
+# product wins once the n^2 / 2 products per row dominate.
+_GRAM_COMPILED_MAX = 64
+_GRAM_BLOCK = 64
+
+
+@numba.njit(cache=_CACHE, nogil=True, fastmath={"reassoc", "contract", "nsz"})
+def _gram_into(
+    u: FloatArray, r: FloatArray, z: FloatArray, y: FloatArray, delays: Any, gram: FloatArray,
+    zty: FloatArray, colsum: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """For the rows k = 0..len(u)-1 of Z (operator outputs, states z carried on): the upper
+    triangle of gram += Z'Z, zty[:, q] += sum_k Z_k y[k + delays[q]], colsum += Z'1."""
+    n = u.shape[0]
+    m = r.shape[0]
+    nd = delays.shape[0]
+    buf = np.empty((m, _GRAM_BLOCK))  # buf[i, k]: operator i at row a + k (columns contiguous)
+    for a in range(0, n, _GRAM_BLOCK):
+        nb = min(n, a + _GRAM_BLOCK) - a
+        for k in range(nb):
+            x = u[a + k]
+            for i in range(m):
+                zi = min(max(z[i], x - r[i]), x + r[i])
+                z[i] = zi
+                buf[i, k] = zi
+        for i in range(m):
+            bi = buf[i]
+            acc = 0.0
+            for k in range(nb):
+                acc += bi[k]
+            colsum[i] += acc
+            for q in range(nd):
+                yq = y[a + delays[q]:]
+                acc = 0.0
+                for k in range(nb):
+                    acc += bi[k] * yq[k]
+                zty[i, q] += acc
+            for j in range(i, m):
+                bj = buf[j]
+                acc = 0.0
+                for k in range(nb):
+                    acc += bi[k] * bj[k]
+                gram[i, j] += acc
 
 
 @dataclass(frozen=True)
@@ -584,10 +628,11 @@ def pi_gram(
     """Accumulate the normal equations of a P-I fit without the ``(N, n)`` regressor matrix.
 
     The operator outputs ``H_ri[u]`` (eq. 1, the columns of eq. 3's linear model) are computed
-    ``chunk_rows`` rows at a time, carrying the operator states from chunk to chunk, and only
-    their products are kept: ``Z'Z``, ``Z'y``, ``Z'1``, ``1'y``, ``y'y`` for every delay at once
-    (one pass over the data, whatever the number of delays). Memory: one chunk, 16 MiB by
-    default, instead of ``8 N n`` bytes.
+    a block of rows at a time, carrying the operator states from block to block, and only their
+    products are kept: ``Z'Z``, ``Z'y``, ``Z'1``, ``1'y``, ``y'y`` for every delay at once (one
+    pass over the data, whatever the number of delays). Up to 64 operators one compiled pass does
+    it all with blocks of 64 rows; with more, chunks of ``chunk_rows`` rows go through BLAS.
+    Memory: at most one chunk (16 MiB by default) instead of ``8 N n`` bytes.
 
     Parameters
     ----------
@@ -600,7 +645,7 @@ def pi_gram(
     initial_state : array_like, shape (n,), optional
         The operators' initial states ``y0`` (eq. 2); default zeros, the de-energised actuator.
     chunk_rows : int, optional
-        Rows of ``Z`` computed at once (default: 16 MiB worth).
+        With more than 64 operators: rows of ``Z`` computed at once (default: 16 MiB worth).
 
     Returns
     -------
@@ -647,15 +692,18 @@ def pi_gram(
     gram = np.zeros((m, m))
     zty = np.zeros((m, nd))
     zsum = np.zeros(m)
-    # one buffer, refilled chunk after chunk; column-major, which BLAS multiplies fastest as Z'Z
-    buf = np.empty((min(chunk_rows, common), m), order="F")
-    for a in range(0, common, chunk_rows):
-        b = min(common, a + chunk_rows)
-        zc = buf[: b - a]
-        _play_outputs_into(us[a:b], r, z, zc, zsum)  # z carries the states on
-        gram += zc.T @ zc
-        ycols = np.stack([ys[a + d:b + d] for d in d_arr], axis=1)
-        zty += zc.T @ ycols
+    if m <= _GRAM_COMPILED_MAX:
+        _gram_into(us[:common], r, z, ys, d_arr, gram, zty, zsum)  # z carries the states on
+        gram = np.triu(gram) + np.triu(gram, 1).T
+    else:
+        # one buffer, refilled chunk after chunk; column-major, which BLAS multiplies fastest
+        buf = np.empty((min(chunk_rows, common), m), order="F")
+        for a in range(0, common, chunk_rows):
+            b = min(common, a + chunk_rows)
+            zc = buf[: b - a]
+            _play_outputs_into(us[a:b], r, z, zc, zsum)  # z carries the states on
+            gram += zc.T @ zc
+            zty += zc.T @ np.stack([ys[a + d:b + d] for d in d_arr], axis=1)
     # the last dmax rows belong to the smaller delays only (u[k] with y[k + d], k + d < N)
     zt = play_outputs(us[common:], r, z) if dmax else np.empty((0, m))
     out_g = np.empty((nd, m, m))
