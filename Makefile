@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 OUT    ?= piezohyst-out
 
-.PHONY: demo test bench clean setup
+.PHONY: demo test bench bench-readme clean setup
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,8 +22,13 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q
 
+# every row a ratio measured in the same run; writes benchmarks/out/results.json (untracked)
 bench: $(STAMP)
 	$(PY) benchmarks/run.py
+
+# the README's performance table, from the last `make bench`
+bench-readme:
+	$(PY) benchmarks/readme_table.py
 
 clean:
 	rm -rf $(VENV) $(OUT) build src/*.egg-info .pytest_cache

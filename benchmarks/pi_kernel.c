@@ -1,6 +1,7 @@
-/* The P-I model of eq. (3) over a whole signal, in plain C: the physical-limit baseline of
- * benchmark row 2 (compiled by benchmarks/run.py with gcc -O3). Same recursion as
- * piezohyst.models.play.pi_simulate. */
+/* The P-I model of eq. (3) over a whole signal, in plain C: every operator at every sample, the
+ * dense reference of the pi-* rows of `make bench` (compiled by benchmarks/run.py with the system
+ * gcc, -O3 -march=native, with and without -ffast-math). Same recursion as
+ * piezohyst.models.play.pi_simulate_dense. */
 #include <stddef.h>
 
 void pi_simulate(const double *u, size_t n_samples, const double *r, const double *w,

@@ -36,7 +36,11 @@ def test_feedforward_streaming_equals_whole_signal():
     for ff in (ph.BoucWenFeedforward(bw), ph.InversePIFeedforward(ph.fit_pi(*_rig_record()).model)):
         whole = ff.command(ref)
         ff.reset()
-        np.testing.assert_array_equal(np.array([ff.step(v) for v in ref]), whole)
+        streamed = np.array([ff.step(v) for v in ref])
+        if isinstance(ff, ph.InversePIFeedforward):  # simulate may go event-driven: same to rounding
+            np.testing.assert_allclose(streamed, whole, rtol=0, atol=1e-12 * np.abs(whole).max())
+        else:
+            np.testing.assert_array_equal(streamed, whole)
 
 
 def _rig_record():

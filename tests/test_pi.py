@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 
 import piezohyst as ph
 from piezohyst import paper_values as pv
+from piezohyst.models.play import pi_simulate_dense
 
 
 def test_equal_thresholds_eq4():
@@ -27,14 +28,19 @@ def test_simulate_is_weighted_sum_of_play_operators(rng):
     np.testing.assert_allclose(y, expected, atol=1e-12)
 
 
-def test_streaming_equals_batch(rng):
+@pytest.mark.parametrize("kind", ["noise", "smooth"])
+def test_streaming_equals_batch(rng, kind):
     model = pv.pi_model()
-    u = rng.uniform(0, 100, 500)
+    u = rng.uniform(0, 100, 500) if kind == "noise" else ph.sinusoid(2.0, 1, 0.0, 100.0, 1e-3)
     s = model.stepper()
     streamed = np.array([s.step(v) for v in u])
-    np.testing.assert_array_equal(streamed, model.simulate(u))
+    # the stepper is the dense loop's own step, sample for sample ...
+    dense = pi_simulate_dense(u, model.thresholds, model.weights, np.zeros(model.n), 0.0, 0.0)
+    np.testing.assert_array_equal(streamed, dense)
+    # ... and simulate (event-driven on the sinusoid, dense on the noise) agrees to rounding
+    np.testing.assert_allclose(model.simulate(u), streamed, rtol=0, atol=1e-12 * np.abs(streamed).max())
     s.reset()
-    assert s.step(u[0]) == model.simulate(u[:1])[0]
+    assert s.step(u[0]) == pytest.approx(model.simulate(u[:1])[0], rel=1e-12, abs=1e-12)
 
 
 @st.composite
@@ -166,3 +172,23 @@ def test_parameters_are_read_only():
     model = pv.pi_model()
     with pytest.raises(ValueError):
         model.weights[0] = 3.0
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_simulate_refuses_non_finite_input(bad):
+    model = pv.pi_model()
+    u = np.linspace(0, 100, 50)
+    u[17] = bad
+    with pytest.raises(ValueError, match="u contains 1 non-finite value.*first at index 17"):
+        model.simulate(u)
+
+
+def test_simulate_takes_any_array_like():
+    # lists, integers, strided views: the same output as the float64 array
+    model = pv.pi_model()
+    u = np.arange(0, 100, 3)
+    ref = model.simulate(u.astype(float))
+    np.testing.assert_array_equal(model.simulate(list(u)), ref)
+    np.testing.assert_array_equal(model.simulate(np.repeat(u.astype(float), 2)[::2]), ref)
+    with pytest.raises(ValueError, match="u must be 1-D"):
+        model.simulate(np.zeros((3, 2)))

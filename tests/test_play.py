@@ -62,3 +62,239 @@ def test_refuses_negative_threshold():
 def test_refuses_2d():
     with pytest.raises(ValueError, match="x must be 1-D"):
         ph.play_operator(np.zeros((3, 2)), 1.0)
+
+
+# -- the event-driven P-I kernel against the dense loop ------------------------------------------
+from piezohyst.models import play as P
+
+
+@st.composite
+def piecewise_signals(draw, max_len=400):
+    """Ramps, constant stretches, noise, steps and integer-valued runs (exact ties), joined."""
+    out = [draw(st.floats(-50, 50))]
+    for _ in range(draw(st.integers(0, 12))):
+        kind = draw(st.sampled_from(["hold", "ramp", "noise", "step", "integers"]))
+        n = draw(st.integers(1, 60))
+        if kind == "ramp":
+            out.extend(np.linspace(out[-1], draw(st.floats(-50, 50)), n + 1)[1:])
+        elif kind == "hold":
+            out.extend([out[-1]] * n)
+        elif kind == "noise":
+            scale = draw(st.sampled_from([1e-3, 0.1, 5.0, 50.0]))
+            seed = draw(st.integers(0, 2**32 - 1))
+            out.extend(out[-1] + np.random.default_rng(seed).uniform(-scale, scale, n))
+        elif kind == "step":
+            out.append(draw(st.floats(-50, 50)))
+        else:
+            out.extend(float(v) for v in draw(st.lists(st.integers(-6, 6), min_size=1, max_size=n)))
+    return np.array(out[:max_len])
+
+
+@st.composite
+def pi_setups(draw):
+    m = draw(st.integers(1, 25))
+    kind = draw(st.sampled_from(["equal", "integer", "random", "with ties"]))
+    if kind == "equal":
+        r = np.arange(m) / (m + 1) * draw(st.floats(1.0, 100.0))
+    elif kind == "integer":  # integer thresholds meet integer inputs in exact ties
+        r = np.arange(m, dtype=float)
+    elif kind == "random":
+        r = np.sort(np.array(draw(st.lists(st.floats(0, 40), min_size=m, max_size=m))))
+    else:
+        r = np.sort(np.array(draw(st.lists(st.sampled_from([0.0, 0.5, 1.0, 3.0]), min_size=m, max_size=m))))
+    w = np.array(draw(st.lists(st.floats(-2, 2), min_size=m, max_size=m)))
+    state = draw(st.sampled_from(["rest", "constant", "reached", "arbitrary"]))
+    if state == "rest":
+        z0 = np.zeros(m)
+    elif state == "constant":
+        z0 = np.full(m, draw(st.floats(-50, 50)))
+    elif state == "reached":  # a state the model can be in: where a run ended
+        z0 = np.zeros(m)
+        P.pi_simulate_dense(draw(piecewise_signals(max_len=40)), r, w, z0, 0.0, 0.0)
+    else:  # any state at all (the kernel runs dense until the state is consistent)
+        z0 = np.array(draw(st.lists(st.floats(-60, 60), min_size=m, max_size=m)))
+    return r, w, z0
+
+
+def _scale(u, r, w, z0, out_off=0.0):
+    # the size of the terms of eq. (3): rounding differences are relative to it
+    return float(np.abs(w).sum() * (np.abs(u).max() + r.max() + np.abs(z0).max()) + abs(out_off) + 1.0)
+
+
+@given(setup=pi_setups(), u=piecewise_signals(), in_off=st.sampled_from([0.0, 3.25]),
+       out_off=st.sampled_from([0.0, -7.5]))
+def test_event_driven_kernel_equals_the_dense_loop(setup, u, in_off, out_off):
+    r, w, z0 = setup
+    zd, ze = z0.copy(), z0.copy()
+    yd = P.pi_simulate_dense(u, r, w, zd, in_off, out_off)
+    ye = P.pi_simulate_events(u, r, w, ze, in_off, out_off)
+    tol = 1e-12 * r.size * _scale(u - in_off, r, w, z0, out_off)
+    np.testing.assert_allclose(ye, yd, rtol=0, atol=tol)
+    # the final operator states too (where the next call starts)
+    np.testing.assert_allclose(ze, zd, rtol=0, atol=1e-12 * (np.abs(u).max() + r.max() + np.abs(z0).max() + 5))
+
+
+@given(setup=pi_setups(), u=piecewise_signals())
+def test_automatic_choice_equals_the_dense_loop(setup, u):
+    r, w, z0 = setup
+    zd, za = z0.copy(), z0.copy()
+    yd = P.pi_simulate_dense(u, r, w, zd, 0.0, 0.0)
+    ya = P.pi_simulate(u, r, w, za, 0.0, 0.0)
+    np.testing.assert_allclose(ya, yd, rtol=0, atol=1e-12 * r.size * _scale(u, r, w, z0))
+    np.testing.assert_allclose(za, zd, rtol=0, atol=1e-12 * (np.abs(u).max() + r.max() + np.abs(z0).max() + 5))
+
+
+@given(setup=pi_setups(), u=piecewise_signals(), extra=st.integers(0, 40), k0=st.integers(0, 5))
+def test_four_samples_at_once_equals_the_dense_loop(setup, u, extra, k0):
+    # the dense loop of the automatic choice composes four clamps into one: the states must come
+    # out bit for bit (only min and max), the outputs to rounding; also past 32 operators
+    r, w, z0 = setup
+    if extra:
+        r = np.concatenate([r, r.max() + np.arange(1, extra + 1)])
+        w = np.concatenate([w, np.linspace(-1, 1, extra)])
+        z0 = np.concatenate([z0, np.full(extra, z0[-1])])
+    k0 = min(k0, u.size)
+    zd, zf = z0.copy(), z0.copy()
+    yd = P.pi_simulate_dense(u[k0:], r, w, zd, 1.5, -2.0)
+    yf = np.full(u.size, np.nan)
+    P._pi_dense_fast_into(u, r, w, zf, 1.5, -2.0, yf, k0, u.size)
+    np.testing.assert_array_equal(zf, zd)
+    np.testing.assert_allclose(yf[k0:], yd, rtol=0, atol=1e-12 * r.size * _scale(u - 1.5, r, w, z0, -2.0))
+    assert np.isnan(yf[:k0]).all()  # samples before k0 untouched
+
+
+def test_event_driven_kernel_unsorted_thresholds_and_long_records(rng):
+    # unsorted thresholds: no prefix structure, so the kernel must stay on the dense loop
+    r = rng.permutation(np.arange(8.0))
+    w = rng.normal(size=8)
+    u = np.cumsum(rng.normal(0, 2, 5000))
+    np.testing.assert_allclose(P.pi_simulate_events(u, r, w, np.zeros(8), 0.0, 0.0),
+                               P.pi_simulate_dense(u, r, w, np.zeros(8), 0.0, 0.0), atol=1e-9)
+    # a long smooth record with noise: many reversals, a deep stack of frozen segments
+    m = 60
+    r = np.arange(m) / (m + 1) * 100.0
+    w = rng.uniform(-0.2, 1.0, m)
+    t = np.arange(200_000) * 1e-4
+    u = 50 + 45 * np.sin(2 * np.pi * t) * np.exp(-0.1 * t) + rng.normal(0, 0.5, t.size)
+    yd = P.pi_simulate_dense(u, r, w, np.zeros(m), 0.0, 0.0)
+    ye = P.pi_simulate_events(u, r, w, np.zeros(m), 0.0, 0.0)
+    np.testing.assert_allclose(ye, yd, rtol=0, atol=1e-12 * m * _scale(u, r, w, np.zeros(1)))
+
+
+def test_the_choice_follows_the_input():
+    # a smooth record moves a few operators per reversal: event-driven; white noise reverses at
+    # nearly every sample and moves many: dense
+    r = np.arange(20) / 21 * 100.0
+    smooth = 50 + 45 * np.sin(2 * np.pi * np.arange(100_000) * 1e-4)
+    noise = np.random.default_rng(0).uniform(0, 100, 100_000)
+    assert P.prefers_events(smooth, r)
+    assert not P.prefers_events(noise, r)
+    turns, moves = P.event_work(noise, r)
+    # uniform white noise: 2/3 of the samples are reversals (a middle one of three)
+    assert turns == pytest.approx(2 / 3, abs=0.03)
+    assert moves > 1.0
+    turns, moves = P.event_work(smooth, r)
+    assert turns < 1e-3 and moves < 0.01
+
+
+def test_consistent_states():
+    r = np.arange(5.0)
+    assert P.state_is_consistent(r, np.zeros(5))
+    z = np.zeros(5)
+    P.pi_simulate_dense(np.array([3.0, -2.5, 7.0, 1.0]), r, np.ones(5), z, 0.0, 0.0)
+    assert P.state_is_consistent(r, z)  # any state the model reaches
+    assert not P.state_is_consistent(r, np.array([0.0, 0.0, 5.0, 0.0, 0.0]))
+    assert not P.state_is_consistent(r[::-1].copy(), np.zeros(5))  # unsorted thresholds
+
+
+# -- streamed normal equations -------------------------------------------------------------------
+@given(setup=pi_setups(), u=piecewise_signals(), chunk=st.integers(1, 50),
+       delays=st.lists(st.integers(0, 5), min_size=1, max_size=4))
+def test_pi_gram_equals_the_dense_matrix(setup, u, chunk, delays):
+    r, _, z0 = setup
+    r = np.abs(r)
+    n = u.size
+    if n < 8:
+        u = np.concatenate([u, np.linspace(u[-1], 0.0, 8)])
+        n = u.size
+    y = np.sin(np.arange(n)) * 3 + u
+    g = P.pi_gram(u, r, y, delays=delays, initial_state=z0, chunk_rows=chunk)
+    z = P.play_outputs(u, r, z0.copy())
+    for i, d in enumerate(delays):
+        zd, yd = z[: n - d], y[d:]
+        scale = (np.abs(zd).max() + 1) * (np.abs(yd).max() + np.abs(zd).max() + 1) * n
+        np.testing.assert_allclose(g.gram[i], zd.T @ zd, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(g.zty[i], zd.T @ yd, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(g.zsum[i], zd.sum(axis=0), rtol=0, atol=1e-12 * scale)
+        assert g.ysum[i] == pytest.approx(yd.sum(), abs=1e-12 * scale)
+        assert g.yty[i] == pytest.approx(yd @ yd, abs=1e-12 * scale)
+        assert g.n_samples[i] == n - d
+        ata, aty, yty, nn = g.normal_equations(i)
+        a = np.hstack([zd, np.ones((n - d, 1))])
+        np.testing.assert_allclose(ata, a.T @ a, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(aty, a.T @ yd, rtol=0, atol=1e-12 * scale)
+        assert nn == n - d and yty == g.yty[i]
+
+
+@pytest.mark.parametrize("m, chunk", [(70, 100), (70, None), (64, None)])
+def test_pi_gram_with_many_operators(rng, m, chunk):
+    # past 64 operators pi_gram goes through BLAS chunk by chunk: the same sums
+    u = np.cumsum(rng.normal(0, 2, 3000))
+    y = rng.normal(size=u.size)
+    r = np.sort(rng.uniform(0, 30, m))
+    z0 = np.zeros(m)
+    g = P.pi_gram(u, r, y, delays=[0, 3], chunk_rows=chunk)
+    z = P.play_outputs(u, r, z0.copy())
+    for i, d in enumerate([0, 3]):
+        zd, yd = z[: u.size - d], y[d:]
+        scale = (np.abs(zd).max() + 1) ** 2 * u.size
+        np.testing.assert_allclose(g.gram[i], zd.T @ zd, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(g.zty[i], zd.T @ yd, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(g.zsum[i], zd.sum(axis=0), rtol=0, atol=1e-12 * scale)
+
+
+def test_pi_gram_gives_the_least_squares_fit(rng):
+    # the weights solved from the streamed normal equations are those of the dense problem
+    r = np.arange(6) / 7 * 5.0  # every operator moves both ways over the 0-10 input
+    w = np.array([0.9, 0.3, -0.1, 0.2, 0.05, 0.1])
+    t = np.arange(20_000) * 1e-3
+    u = 5 + 5 * np.sin(2 * np.pi * t) * (0.2 + 0.8 * (t % 4) / 4)
+    y = P.pi_simulate_dense(u, r, w, np.zeros(6), 0.0, 1.5) + rng.normal(0, 0.01, u.size)
+    y_lag = np.concatenate([np.zeros(2), y[:-2]])  # a sensor two samples late
+    g = P.pi_gram(u, r, y_lag, delays=[0, 1, 2, 3], chunk_rows=1000)
+    ata, aty, yty, nn = g.normal_equations(2)
+    x = np.linalg.solve(ata, aty)
+    z = P.play_outputs(u, r, np.zeros(6))
+    a = np.hstack([z[:-2], np.ones((u.size - 2, 1))])
+    x_dense = np.linalg.lstsq(a, y_lag[2:], rcond=None)[0]
+    np.testing.assert_allclose(x, x_dense, atol=1e-8)
+    np.testing.assert_allclose(x[:6], w, atol=5e-3)
+    rmse = np.sqrt((x @ ata @ x - 2 * x @ aty + yty) / nn)
+    assert rmse == pytest.approx(np.sqrt(np.mean((a @ x_dense - y_lag[2:]) ** 2)), rel=1e-6)
+    # and the right delay has the smallest residual
+    rmses = []
+    for i in range(4):
+        ata, aty, yty, nn = g.normal_equations(i)
+        xi = np.linalg.solve(ata, aty)
+        rmses.append((xi @ ata @ xi - 2 * xi @ aty + yty) / nn)
+    assert int(np.argmin(rmses)) == 2
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(y=np.zeros(5)), "same length"),
+        (dict(delays=[-1]), "delays must lie"),
+        (dict(delays=[9]), "delays must lie"),
+        (dict(delays=[0.5]), "integers"),
+        (dict(delays=[]), "non-empty"),
+        (dict(initial_state=[0.0]), "initial_state"),
+        (dict(chunk_rows=0), "chunk_rows"),
+        (dict(thresholds=[-1.0, 1.0]), "thresholds must be >= 0"),
+    ],
+)
+def test_pi_gram_refuses_bad_input(kwargs, match):
+    args = dict(u=np.arange(10.0), thresholds=[0.0, 1.0], y=np.arange(10.0))
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        P.pi_gram(args.pop("u"), args.pop("thresholds"), args.pop("y"), **args)

@@ -22,7 +22,7 @@ import numpy as np
 
 from .._validation import FloatArray, as_scalar, as_signal, frozen
 from .base import Compensator, check_dt, register_kind
-from .play import pi_simulate, pi_step
+from .play import finite_signal, pi_simulate, pi_step
 
 
 def equal_thresholds(n: int = 20, u_max: float = 100.0) -> FloatArray:
@@ -155,10 +155,13 @@ class PrandtlIshlinskii:
     def simulate(self, u: Any, dt: float | None = None) -> FloatArray:
         """Output of eq. (3) for the input signal ``u``, starting from ``initial_state``.
 
-        The model is rate independent: ``dt`` is accepted (every kind takes it) and unused.
+        Runs :func:`piezohyst.models.play.pi_simulate`: event-driven (work proportional to
+        the operators that move) on smooth inputs, the dense loop on inputs such as white
+        noise; the two agree to rounding. The model is rate independent: ``dt`` is accepted
+        (every kind takes it) and unused.
         """
         check_dt(dt, None, self.kind)
-        x = as_signal("u", u)
+        x = finite_signal("u", u)
         z = np.array(self.initial_state)
         return pi_simulate(x, self.thresholds, self.weights, z, self.input_offset, self.offset)
 
@@ -275,8 +278,9 @@ class PrandtlIshlinskii:
 class PIStepper:
     """Streaming P-I evaluation: one input sample in, one output sample out.
 
-    Runs :func:`piezohyst.models.play.pi_step`, the kernel that :meth:`PrandtlIshlinskii.simulate`
-    loops over, so the two give identical outputs.
+    Runs :func:`piezohyst.models.play.pi_step`, the kernel that
+    :func:`~piezohyst.models.play.pi_simulate_dense` loops over, so the two give identical
+    outputs; :meth:`PrandtlIshlinskii.simulate` agrees with both to rounding.
     """
 
     __slots__ = ("model", "_r", "_w", "_z", "_in", "_out")

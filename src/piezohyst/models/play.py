@@ -5,15 +5,31 @@
 
 Eq. (2) is eq. (1) applied to the first sample with ``y(-1) = y0``, so one step function
 serves both. Every kernel here takes the operator states ``z`` (one per threshold) and updates
-them in place: the batch path (:func:`pi_simulate`, :func:`play_outputs`) and the streaming
-path (:func:`pi_step`) run the very same :func:`play_step`, so they cannot drift apart.
+them in place.
+
+Two ways to run eq. (3) over a whole signal give the same outputs to rounding:
+
+* the dense loop (:func:`pi_simulate_dense`): every operator at every sample, ``N * n`` work,
+  the very :func:`pi_step` that the streaming path (:class:`~piezohyst.models.pi.PIStepper`)
+  calls, so the two give identical outputs;
+* the event-driven loop (:func:`pi_simulate_events`): work proportional to the operators that
+  actually move, ``O(N + moves)``; on smooth records tens to hundreds of times less work.
+
+:func:`pi_simulate` picks one per call from a cheap look at the input (:func:`event_work`):
+the event-driven loop for smooth records, the dense one where nearly every sample reverses
+and moves many operators (white noise). :func:`pi_gram` accumulates the normal equations of a
+P-I fit in chunks, without the ``(N, n)`` regressor matrix.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
+import numba
 import numpy as np
 
-from .._numba import njit
+from .._numba import _CACHE, njit
 from .._validation import FloatArray, as_signal
 
 
@@ -43,28 +59,442 @@ def pi_step(
 
 
 @njit
+def _pi_dense_into(
+    u: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float,
+    y: FloatArray, k0: int, k1: int,
+) -> None:  # pragma: no cover - compiled
+    for k in range(k0, k1):
+        y[k] = pi_step(u[k], r, w, z, in_off, out_off)
+
+
+# The dense loop of the automatic choice. Its cost is the chain of dependent clamps through each
+# operator's state, sample after sample, so four samples are taken at once: clamps compose into
+# clamps, clamp(clamp(z, l1, h1), l2, h2) = clamp(z, clamp(l1, l2, h2), clamp(h1, l2, h2)), so
+# the states after 1..4 samples all follow from the state before them by one clamp each (exact:
+# only min and max), and the chain is a quarter as long. That costs more operations per sample,
+# which pays while there are few operators (the chain dominates); with many, the plain loop is
+# faster. The weighted sum of eq. (3) may be reassociated (vectorised over the operators): the
+# outputs differ from pi_step's strict left-to-right sum by rounding only.
+_FOUR_AT_ONCE = 32  # up to this many operators, four samples at once (measured: see the comment)
+
+
+@numba.njit(cache=_CACHE, nogil=True, fastmath={"reassoc", "contract", "nsz"})
+def _pi_dense_fast_into(
+    u: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float,
+    y: FloatArray, k0: int, k1: int,
+) -> None:  # pragma: no cover - compiled
+    m = r.shape[0]
+    k = k0
+    if m <= _FOUR_AT_ONCE:
+        while k + 4 <= k1:
+            x0 = u[k] - in_off
+            x1 = u[k + 1] - in_off
+            x2 = u[k + 2] - in_off
+            x3 = u[k + 3] - in_off
+            a0 = a1 = a2 = a3 = 0.0
+            for i in range(m):
+                ri = r[i]
+                wi = w[i]
+                l0 = x0 - ri
+                h0 = x0 + ri
+                l1 = x1 - ri
+                h1 = x1 + ri
+                l2 = x2 - ri
+                h2 = x2 + ri
+                l3 = x3 - ri
+                h3 = x3 + ri
+                lo1 = min(max(l0, l1), h1)  # the bounds of two, three, four clamps in a row
+                hi1 = min(max(h0, l1), h1)
+                lo2 = min(max(lo1, l2), h2)
+                hi2 = min(max(hi1, l2), h2)
+                lo3 = min(max(lo2, l3), h3)
+                hi3 = min(max(hi2, l3), h3)
+                zi = z[i]
+                z3 = min(max(zi, lo3), hi3)
+                a0 += wi * min(max(zi, l0), h0)
+                a1 += wi * min(max(zi, lo1), hi1)
+                a2 += wi * min(max(zi, lo2), hi2)
+                a3 += wi * z3
+                z[i] = z3
+            y[k] = a0 + out_off
+            y[k + 1] = a1 + out_off
+            y[k + 2] = a2 + out_off
+            y[k + 3] = a3 + out_off
+            k += 4
+    for q in range(k, k1):
+        xs = u[q] - in_off
+        acc = 0.0
+        for i in range(m):
+            zi = min(max(z[i], xs - r[i]), xs + r[i])
+            z[i] = zi
+            acc += w[i] * zi
+        y[q] = acc + out_off
+
+
+@njit
+def pi_simulate_dense(
+    u: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float
+) -> FloatArray:  # pragma: no cover - compiled
+    """Eq. (3) over a whole signal, every operator at every sample (``N * n`` work).
+
+    ``z`` holds the initial state and ends as the final one. Identical, sample for sample, to
+    calling :func:`pi_step` in a loop (the streaming path).
+    """
+    n = u.shape[0]
+    y = np.empty(n)
+    _pi_dense_into(u, r, w, z, in_off, out_off, y, 0, n)
+    return y
+
+
+# -- the event-driven kernel ---------------------------------------------------------------------
+# Why it works. Take sorted thresholds and a state whose neighbours differ by no more than their
+# thresholds, |z_{i+1} - z_i| <= r_{i+1} - r_i ("consistent": the state at rest, any constant
+# state, and every state reached from a consistent one, since eq. (1) is a clamp and keeps the
+# condition). Then a rise of the input to x moves exactly the operators with z_i + r_i < x: a
+# *prefix* of the sorted operators, as z_i + r_i grows with i; a fall moves the prefix with
+# z_i - r_i > x. So the state is a stack of segments of operators (the wiping-out memory of the
+# P-I model):
+#   * operators 0..j-1 glued to the input: z_i = x - s r_i (s = +1 rising, -1 falling);
+#   * segments frozen at a past reversal e_t of sense s_t: z_i = e_t - s_t r_i, i < b_t;
+#   * below them the initial states, untouched so far.
+# At a reversal the glued segment freezes (a push, O(1)). As the input moves on, the next
+# operator j starts to move when x - s r_j passes its state (one test per sample); a frozen
+# segment of the other sense is taken over one operator at a time (each one that moves), one of
+# the same sense all at once when x passes its extremum (a pop, O(1)). The output
+#     y = x sum_{i<j} w_i - s sum_{i<j} w_i r_i + sum_{i>=j} w_i z_i                    (eq. 3)
+# is kept as x * cw + c from prefix sums of w and w r and the sums the stack stores, refreshed
+# only when j or the stack changes. The work is O(N + operator moves) instead of O(N * n); the
+# tests and states are the dense loop's own floating-point operations (x - r_j > z_j, ...).
+
+_CALM = 8  # samples in a row with nothing to do before the event-driven loop goes to _quiet_run
+_BLOCK = 256  # samples run densely between two checks of a state that is not (yet) consistent
+
+
+@njit
+def state_is_consistent(r: FloatArray, z: FloatArray) -> bool:  # pragma: no cover - compiled
+    """True if ``r`` is non-decreasing and ``|z_{i+1} - z_i| <= r_{i+1} - r_i`` (to rounding).
+
+    Under this condition the operators that an input rise (or fall) moves are a prefix of the
+    sorted operators, which the event-driven kernel relies on. A state violating it only by
+    rounding (a few units in the last place) passes: the kernel's error stays at rounding level.
+    """
+    for i in range(r.shape[0] - 1):
+        dr = r[i + 1] - r[i]
+        if dr < 0.0:
+            return False
+        tol = 8.0 * 2.220446049250313e-16 * (abs(z[i]) + abs(z[i + 1]) + abs(r[i + 1]))
+        if abs(z[i + 1] - z[i]) > dr + tol:
+            return False
+    return True
+
+
+@njit
+def _quiet_run(
+    u: FloatArray, y: FloatArray, k: int, in_off: float, s: float, sxp: float, rj: float,
+    szj: float, cw: float, c: float,
+) -> int:  # pragma: no cover - compiled
+    """Outputs ``x cw + c`` from sample ``k`` on while nothing happens; return the first sample
+    where the input reverses or the next operator starts to move (``len(u)`` if none)."""
+    uu = u[k:]
+    yy = y[k:]
+    for q in range(uu.shape[0]):
+        x = uu[q] - in_off
+        sx = s * x
+        if sx < sxp or sx - rj > szj:
+            return k + q
+        yy[q] = x * cw + c
+        sxp = sx
+    return u.shape[0]
+
+
+@njit
+def _pi_events_into(
+    u: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float,
+    y: FloatArray, k0: int,
+) -> None:  # pragma: no cover - compiled
+    """Event-driven eq. (3) over ``u[k0:]`` into ``y[k0:]``; ``z`` must be consistent."""
+    m = r.shape[0]
+    n = u.shape[0]
+    wsum = np.zeros(m + 1)  # wsum[j] = sum_{i<j} w_i
+    wrsum = np.zeros(m + 1)  # wrsum[j] = sum_{i<j} w_i r_i
+    tail = 0.0  # sum of w_i z_i over the initial states not yet taken over (i >= j, empty stack)
+    for i in range(m):
+        wsum[i + 1] = wsum[i] + w[i]
+        wrsum[i + 1] = wrsum[i] + w[i] * r[i]
+        tail += w[i] * z[i]
+    k = k0
+    s = 0.0
+    while k < n:  # nothing moves until operator 0 does; its sense starts the first run
+        x = u[k] - in_off
+        if x - r[0] > z[0]:
+            s = 1.0
+            break
+        if x + r[0] < z[0]:
+            s = -1.0
+            break
+        y[k] = tail + out_off
+        k += 1
+    if k == n:
+        return
+    # the stack of frozen segments: extremum, sense, end (exclusive), sum of w_i z_i beyond it
+    st_e = np.empty(m)
+    st_s = np.empty(m)
+    st_b = np.empty(m, dtype=np.int64)
+    st_below = np.empty(m)
+    depth = 0
+    j = 0  # operators 0..j-1 are glued to the input
+    sxp = s * (u[k] - in_off)  # s times the previous shifted sample (the first is no reversal)
+    # The next operator moves when sx - rj > szj, with sx = s x: exactly the dense loop's
+    # x - r_j > z_j rising, x + r_j < z_j falling (a product by +-1 is exact). -inf: look now.
+    rj = 0.0
+    szj = -np.inf
+    cw = c = 0.0  # y = x cw + c
+    calm = 0  # samples in a row with nothing to do
+    while k < n:
+        if calm >= _CALM:  # a quiet stretch: on to the next event in a tight loop of its own
+            k1 = _quiet_run(u, y, k, in_off, s, sxp, rj, szj, cw, c)
+            calm = 0
+            if k1 > k:
+                sxp = s * (u[k1 - 1] - in_off)
+                k = k1
+            if k == n:
+                break
+        x = u[k] - in_off
+        sx = s * x
+        calm += 1
+        if sx < sxp:  # a reversal at the previous sample, xp = s * sxp
+            calm = 0
+            if j > 0:  # freeze the glued segment: push (xp, s, j)
+                if depth > 0:
+                    t = depth - 1
+                    bt = st_b[t]
+                    below = (st_e[t] * (wsum[bt] - wsum[j])
+                             - st_s[t] * (wrsum[bt] - wrsum[j]) + st_below[t])
+                else:
+                    below = tail
+                st_e[depth] = s * sxp
+                st_s[depth] = s
+                st_b[depth] = j
+                st_below[depth] = below
+                depth += 1
+                j = 0
+            s = -s
+            sx = -sx
+            szj = -np.inf
+        if sx - rj > szj:
+            calm = 0
+            while True:  # glue every operator that starts to move at x
+                if depth > 0:
+                    t = depth - 1
+                    if st_s[t] == s:  # same sense: the whole segment moves once x passes e_t
+                        if sx > s * st_e[t]:
+                            j = st_b[t]
+                            depth -= 1
+                            continue
+                        break
+                    if not sx - r[j] > s * (st_e[t] - st_s[t] * r[j]):
+                        break
+                    j += 1
+                    if j == st_b[t]:
+                        depth -= 1
+                else:
+                    if j == m or not sx - r[j] > s * z[j]:
+                        break
+                    tail -= w[j] * z[j]
+                    j += 1
+            # the next test and the output's coefficients
+            cw = wsum[j]
+            if depth > 0:
+                t = depth - 1
+                bt = st_b[t]
+                if st_s[t] == s:
+                    rj = 0.0
+                    szj = s * st_e[t]
+                else:
+                    rj = r[j]
+                    szj = s * (st_e[t] - st_s[t] * r[j])
+                c = (st_e[t] * (wsum[bt] - wsum[j]) - st_s[t] * (wrsum[bt] - wrsum[j])
+                     + st_below[t] - s * wrsum[j] + out_off)
+            else:
+                if j < m:
+                    rj = r[j]
+                    szj = s * z[j]
+                else:
+                    rj = 0.0
+                    szj = np.inf
+                c = tail - s * wrsum[j] + out_off
+        y[k] = x * cw + c
+        sxp = sx
+        k += 1
+    xp = s * sxp
+    # write the state back: glued operators, then the frozen segments from the top down
+    for i in range(j):
+        z[i] = xp - s * r[i]
+    start = j
+    for t in range(depth - 1, -1, -1):
+        for i in range(start, st_b[t]):
+            z[i] = st_e[t] - st_s[t] * r[i]
+        start = st_b[t]
+
+
+@njit
+def pi_simulate_events(
+    u: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float
+) -> FloatArray:  # pragma: no cover - compiled
+    """Eq. (3) over a whole signal, event-driven: work proportional to the operators that move.
+
+    Same outputs as :func:`pi_simulate_dense` to rounding, for any thresholds and state: while
+    the state is not consistent (:func:`state_is_consistent`; e.g. an arbitrary initial state
+    or unsorted thresholds) it runs the dense loop, checking again every few hundred samples.
+    ``z`` holds the initial state and ends as the final one.
+    """
+    n = u.shape[0]
+    y = np.empty(n)
+    k = 0
+    while k < n and not state_is_consistent(r, z):
+        k1 = min(n, k + _BLOCK)
+        _pi_dense_into(u, r, w, z, in_off, out_off, y, k, k1)
+        k = k1
+    if k < n:
+        _pi_events_into(u, r, w, z, in_off, out_off, y, k)
+    return y
+
+
+# -- the automatic choice ------------------------------------------------------------------------
+_PROBE = 4096  # samples the cheap look reads at most
+# Costs per sample in ns, measured on an x86-64 (benchmarks/calibrate_pi.py): the event-driven
+# loop, _EV_SAMPLE plus _EV_TURN per reversal and _EV_MOVE per operator move; the dense loop,
+# _DENSE_SAMPLE plus _DENSE_OP per operator. Only their ratios matter, and only near the break-even.
+_EV_SAMPLE = 1.5
+_EV_TURN = 30.0
+_EV_MOVE = 15.0
+_DENSE_SAMPLE = 4.0
+_DENSE_OP = 0.4
+
+
+@njit
+def event_work(u: FloatArray, r: FloatArray) -> tuple[float, float]:  # pragma: no cover
+    """Estimated reversals and operator moves per sample of the event-driven loop on ``u``.
+
+    A cheap look: at most ``_PROBE`` samples (and at most a 16th of the record) in up to 16
+    blocks spread over it. A run of the input between two reversals, of height ``h``, moves
+    about the operators with ``2 r_i < h`` (those whose backlash it crosses). ``r`` must be
+    sorted.
+    """
+    n = u.shape[0]
+    probe = min(_PROBE, max(64, n // 16))
+    blocks = 16
+    length = probe // blocks
+    if n <= probe or length < 16:
+        blocks = 1
+        length = min(n, probe)
+    stride = (n - length) // (blocks - 1) if blocks > 1 else 0
+    two_r = 2.0 * r
+    turns = 0.0
+    moves = 0.0
+    for b in range(blocks):
+        s = b * stride
+        d = 0
+        start = u[s]
+        prev = u[s]
+        for k in range(s + 1, s + length):
+            x = u[k]
+            if x > prev:
+                if d < 0:  # a bottom at prev: the fall from start to prev is done
+                    turns += 1.0
+                    moves += np.searchsorted(two_r, start - prev)
+                    start = prev
+                d = 1
+            elif x < prev:
+                if d > 0:
+                    turns += 1.0
+                    moves += np.searchsorted(two_r, prev - start)
+                    start = prev
+                d = -1
+            prev = x
+        moves += np.searchsorted(two_r, abs(prev - start))
+    seen = max(1, blocks * (length - 1))
+    return turns / seen, moves / seen
+
+
+@njit
+def prefers_events(u: FloatArray, r: FloatArray) -> bool:  # pragma: no cover - compiled
+    """True if the event-driven loop is expected to beat the dense one on ``u`` (cost model).
+
+    The estimated costs per sample, from :func:`event_work` and the constants above, compared.
+    """
+    m = r.shape[0]
+    for i in range(m - 1):
+        if r[i + 1] < r[i]:
+            return False  # unsorted thresholds: the event-driven loop would run dense anyway
+    if u.shape[0] < 2:
+        return False
+    turns, moves = event_work(u, r)
+    return _EV_SAMPLE + _EV_TURN * turns + _EV_MOVE * moves < _DENSE_SAMPLE + _DENSE_OP * m
+
+
+@njit
 def pi_simulate(
     u: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float
 ) -> FloatArray:  # pragma: no cover - compiled
-    """Eq. (3) over a whole signal; ``z`` holds the initial state and ends as the final one."""
-    n = u.shape[0]
-    y = np.empty(n)
-    for k in range(n):
-        y[k] = pi_step(u[k], r, w, z, in_off, out_off)
+    """Eq. (3) over a whole signal; ``z`` holds the initial state and ends as the final one.
+
+    Runs :func:`pi_simulate_events` or :func:`pi_simulate_dense`, whichever the cost model of
+    :func:`prefers_events` expects to be faster on ``u``; both give the same outputs to rounding.
+    """
+    if prefers_events(u, r):
+        return pi_simulate_events(u, r, w, z, in_off, out_off)
+    y = np.empty(u.shape[0])
+    _pi_dense_fast_into(u, r, w, z, in_off, out_off, y, 0, u.shape[0])
     return y
 
 
 @njit
-def play_outputs(u: FloatArray, r: FloatArray, z: FloatArray) -> FloatArray:  # pragma: no cover
-    """All operator outputs ``H_ri[u](k)`` as an (N, n) matrix (the regressors of a P-I fit)."""
-    n = u.shape[0]
-    m = r.shape[0]
-    out = np.empty((n, m))
-    for k in range(n):
+def _play_outputs_into(
+    u: FloatArray, r: FloatArray, z: FloatArray, out: FloatArray, colsum: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """The operator outputs into ``out`` (rows = samples), their column sums added to ``colsum``."""
+    for k in range(u.shape[0]):
         play_step(u[k], r, z)
-        for i in range(m):
+        for i in range(r.shape[0]):
+            out[k, i] = z[i]
+            colsum[i] += z[i]
+
+
+@njit
+def play_outputs(u: FloatArray, r: FloatArray, z: FloatArray) -> FloatArray:  # pragma: no cover
+    """All operator outputs ``H_ri[u](k)`` as an (N, n) matrix (the regressors of a P-I fit).
+
+    Dense on purpose: every element of the matrix is written whatever the input, and writing
+    it is the cost (``make bench`` compares it with merely filling a matrix of that size), so
+    the event-driven bookkeeping would save nothing here.
+    """
+    out = np.empty((u.shape[0], r.shape[0]))
+    for k in range(u.shape[0]):
+        play_step(u[k], r, z)
+        for i in range(r.shape[0]):
             out[k, i] = z[i]
     return out
+
+
+@numba.njit(cache=_CACHE, nogil=True, fastmath={"reassoc"})
+def _all_finite(x: FloatArray) -> bool:  # pragma: no cover - compiled
+    # 0 * x is NaN exactly where x is NaN or infinite; the sum may be vectorised (reassoc only:
+    # the compiler must not assume the absence of NaN or inf, which is what is being tested)
+    acc = 0.0
+    for i in range(x.shape[0]):
+        acc += 0.0 * x[i]
+    return acc == 0.0
+
+
+def finite_signal(name: str, value: Any) -> FloatArray:
+    """:func:`~piezohyst._validation.as_signal`, with a fast path for what it would return as is
+    (a 1-D, C-contiguous, finite float64 array): one compiled pass instead of a temporary
+    boolean array. Anything else goes to ``as_signal``, which raises its errors."""
+    if (isinstance(value, np.ndarray) and value.dtype == np.float64 and value.ndim == 1
+            and value.size >= 1 and value.flags.c_contiguous and _all_finite(value)):
+        return value
+    return as_signal(name, value)
 
 
 def play_operator(x: object, r: float, y0: float = 0.0) -> FloatArray:
@@ -91,3 +521,200 @@ def play_operator(x: object, r: float, y0: float = 0.0) -> FloatArray:
         raise ValueError(f"y0 must be finite, got {y0}")
     z = np.array([float(y0)])
     return play_outputs(xs, np.array([float(r)]), z)[:, 0]
+
+
+# -- streamed normal equations -------------------------------------------------------------------
+_CHUNK_BYTES = 16 * 2**20  # the operator outputs held at once by pi_gram's BLAS path
+# Up to this many operators pi_gram accumulates in one compiled, single-threaded pass (blocks of
+# _GRAM_BLOCK rows kept in cache); above it, chunk by chunk through BLAS, whose blocked matrix
+# product wins once the n^2 / 2 products per row dominate.
+_GRAM_COMPILED_MAX = 64
+_GRAM_BLOCK = 64
+
+
+@numba.njit(cache=_CACHE, nogil=True, fastmath={"reassoc", "contract", "nsz"})
+def _gram_into(
+    u: FloatArray, r: FloatArray, z: FloatArray, y: FloatArray, delays: Any, gram: FloatArray,
+    zty: FloatArray, colsum: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """For the rows k = 0..len(u)-1 of Z (operator outputs, states z carried on): the upper
+    triangle of gram += Z'Z, zty[:, q] += sum_k Z_k y[k + delays[q]], colsum += Z'1."""
+    n = u.shape[0]
+    m = r.shape[0]
+    nd = delays.shape[0]
+    buf = np.empty((m, _GRAM_BLOCK))  # buf[i, k]: operator i at row a + k (columns contiguous)
+    for a in range(0, n, _GRAM_BLOCK):
+        nb = min(n, a + _GRAM_BLOCK) - a
+        for k in range(nb):
+            x = u[a + k]
+            for i in range(m):
+                zi = min(max(z[i], x - r[i]), x + r[i])
+                z[i] = zi
+                buf[i, k] = zi
+        for i in range(m):
+            bi = buf[i]
+            acc = 0.0
+            for k in range(nb):
+                acc += bi[k]
+            colsum[i] += acc
+            for q in range(nd):
+                yq = y[a + delays[q]:]
+                acc = 0.0
+                for k in range(nb):
+                    acc += bi[k] * yq[k]
+                zty[i, q] += acc
+            for j in range(i, m):
+                bj = buf[j]
+                acc = 0.0
+                for k in range(nb):
+                    acc += bi[k] * bj[k]
+                gram[i, j] += acc
+
+
+@dataclass(frozen=True)
+class GramStats:
+    """The normal equations of a linear P-I fit, for one or more output delays.
+
+    For delay ``d``, the regressor matrix ``Z_d`` has the rows ``H_ri[u](k)`` for
+    ``k = 0 .. N-d-1`` (the operator outputs of eq. 1 driven by ``u``) and the target is
+    ``y_d = y[d:]``: the pairing ``u[k]`` with ``y[k + d]`` of a sensor that lags by ``d``
+    samples. Entry ``i`` of every field belongs to ``delays[i]``.
+
+    Attributes
+    ----------
+    delays : ndarray of int, shape (D,)
+    n_samples : ndarray of int, shape (D,)
+        ``N - d``, the rows of ``Z_d``.
+    gram : ndarray, shape (D, n, n)
+        ``Z_d' Z_d``.
+    zty : ndarray, shape (D, n)
+        ``Z_d' y_d``.
+    zsum : ndarray, shape (D, n)
+        Column sums of ``Z_d`` (``Z_d' 1``).
+    ysum, yty : ndarray, shape (D,)
+        ``1' y_d`` and ``y_d' y_d``.
+    """
+
+    delays: Any
+    n_samples: Any
+    gram: Any
+    zty: Any
+    zsum: Any
+    ysum: Any
+    yty: Any
+
+    def normal_equations(self, i: int = 0, *, offset: bool = True) -> tuple[FloatArray, FloatArray, float, int]:
+        """``(A'A, A'y, y'y, N)`` for ``delays[i]``, ``A = [Z_d, 1]`` (or ``Z_d`` without offset).
+
+        The least-squares residual of any ``x`` is ``x'A'Ax - 2 x'A'y + y'y``, so the RMSE of eq.
+        (9) follows without the data: ``sqrt(that / N)``.
+        """
+        g, b = self.gram[i], self.zty[i]
+        nr = int(self.n_samples[i])
+        if not offset:
+            return g.copy(), b.copy(), float(self.yty[i]), nr
+        n = g.shape[0]
+        ata = np.empty((n + 1, n + 1))
+        ata[:n, :n] = g
+        ata[:n, n] = ata[n, :n] = self.zsum[i]
+        ata[n, n] = nr
+        return ata, np.append(b, self.ysum[i]), float(self.yty[i]), nr
+
+
+def pi_gram(
+    u: Any, thresholds: Any, y: Any, *, delays: Any = (0,), initial_state: Any = None,
+    chunk_rows: int | None = None,
+) -> GramStats:
+    """Accumulate the normal equations of a P-I fit without the ``(N, n)`` regressor matrix.
+
+    The operator outputs ``H_ri[u]`` (eq. 1, the columns of eq. 3's linear model) are computed
+    a block of rows at a time, carrying the operator states from block to block, and only their
+    products are kept: ``Z'Z``, ``Z'y``, ``Z'1``, ``1'y``, ``y'y`` for every delay at once (one
+    pass over the data, whatever the number of delays). Up to 64 operators one compiled pass does
+    it all with blocks of 64 rows; with more, chunks of ``chunk_rows`` rows go through BLAS.
+    Memory: at most one chunk (16 MiB by default) instead of ``8 N n`` bytes.
+
+    Parameters
+    ----------
+    u, y : array_like, 1-D, same length N
+        Input and measured output.
+    thresholds : array_like, shape (n,)
+        The operators' thresholds ``r_i`` (any order; ``>= 0``).
+    delays : sequence of int
+        Output delays ``d`` in samples (``0 <= d <= N - 2``): ``u[k]`` is paired with ``y[k + d]``.
+    initial_state : array_like, shape (n,), optional
+        The operators' initial states ``y0`` (eq. 2); default zeros, the de-energised actuator.
+    chunk_rows : int, optional
+        With more than 64 operators: rows of ``Z`` computed at once (default: 16 MiB worth).
+
+    Returns
+    -------
+    GramStats
+        One set of normal equations per delay, in the order given.
+
+    Examples
+    --------
+    >>> import numpy as np, piezohyst as ph
+    >>> from piezohyst.models.play import pi_gram
+    >>> u = ph.sinusoid(1.0, 2, 0.0, 10.0, 1e-3); r = ph.equal_thresholds(4, 10.0)
+    >>> g = pi_gram(u, r, 2 * u, delays=[0, 3])
+    >>> z = ph.PrandtlIshlinskii(r, np.ones(4)).operator_outputs(u)
+    >>> bool(np.allclose(g.gram[1], z[:-3].T @ z[:-3]) and np.allclose(g.zty[1], z[:-3].T @ (2 * u[3:])))
+    True
+    """
+    us = as_signal("u", u, min_length=2)
+    ys = as_signal("y", y, min_length=2)
+    if us.size != ys.size:
+        raise ValueError(f"u and y must have the same length, got {us.size} and {ys.size}")
+    r = as_signal("thresholds", thresholds)
+    if np.any(r < 0):
+        raise ValueError(f"thresholds must be >= 0, got a minimum of {r.min()}")
+    n, m = us.size, r.size
+    if initial_state is None:
+        z = np.zeros(m)
+    else:
+        z = np.array(as_signal("initial_state", initial_state))
+        if z.size != m:
+            raise ValueError(f"initial_state must have one entry per threshold: got {z.size} for {m}")
+    d_arr = np.atleast_1d(np.asarray(delays))
+    if d_arr.ndim != 1 or d_arr.size == 0 or not np.issubdtype(d_arr.dtype, np.integer):
+        raise ValueError(f"delays must be a non-empty sequence of integers, got {delays!r}")
+    if d_arr.min() < 0 or d_arr.max() > n - 2:
+        raise ValueError(f"delays must lie in 0 .. {n - 2} (N - 2) for {n} samples, got {delays!r}")
+    d_arr = d_arr.astype(np.int64)
+    if chunk_rows is None:
+        chunk_rows = max(1024, _CHUNK_BYTES // (8 * m))
+    if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, (int, np.integer)) or chunk_rows < 1:
+        raise ValueError(f"chunk_rows must be a positive integer, got {chunk_rows!r}")
+    nd = d_arr.size
+    dmax = int(d_arr.max())
+    common = n - dmax  # rows every delay uses
+    gram = np.zeros((m, m))
+    zty = np.zeros((m, nd))
+    zsum = np.zeros(m)
+    if m <= _GRAM_COMPILED_MAX:
+        _gram_into(us[:common], r, z, ys, d_arr, gram, zty, zsum)  # z carries the states on
+        gram = np.triu(gram) + np.triu(gram, 1).T
+    else:
+        # one buffer, refilled chunk after chunk; column-major, which BLAS multiplies fastest
+        buf = np.empty((min(chunk_rows, common), m), order="F")
+        for a in range(0, common, chunk_rows):
+            b = min(common, a + chunk_rows)
+            zc = buf[: b - a]
+            _play_outputs_into(us[a:b], r, z, zc, zsum)  # z carries the states on
+            gram += zc.T @ zc
+            zty += zc.T @ np.stack([ys[a + d:b + d] for d in d_arr], axis=1)
+    # the last dmax rows belong to the smaller delays only (u[k] with y[k + d], k + d < N)
+    zt = play_outputs(us[common:], r, z) if dmax else np.empty((0, m))
+    out_g = np.empty((nd, m, m))
+    out_b = np.empty((nd, m))
+    out_s = np.empty((nd, m))
+    for i, d in enumerate(d_arr):
+        extra = zt[: dmax - d]
+        out_g[i] = gram + extra.T @ extra
+        out_s[i] = zsum + extra.sum(axis=0)
+        out_b[i] = zty[:, i] + extra.T @ ys[common + d: n]
+    ysum = np.array([ys[d:].sum() for d in d_arr])
+    yty = np.array([ys[d:] @ ys[d:] for d in d_arr])
+    return GramStats(delays=d_arr, n_samples=n - d_arr, gram=out_g, zty=out_b, zsum=out_s,
+                     ysum=ysum, yty=yty)
