@@ -24,10 +24,43 @@ import numpy as np
 
 from .._validation import FloatArray, as_scalar
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
-from ..models.play import play_outputs
+from ..models.play import pi_gram, play_outputs
 from ..pso import pso_minimize
-from .lsq import bounded_lstsq
+from .lsq import bounded_lstsq_gram
 from .result import FitResult, paired_signals as _pair, unpack_data
+
+
+def _partial_sum_map(nr: int, fit_offset: bool) -> FloatArray:
+    """``M`` with ``[Z, 1] M = [z_1 - z_2, ..., z_{n-1} - z_n, z_n, 1]``: the columns of the partial
+    sums ``S_i = w_1 + ... + w_i`` (the weights' invertibility becomes the bounds ``S_i >= margin``)."""
+    q = nr + (1 if fit_offset else 0)
+    m = np.eye(q)
+    for i in range(nr - 1):
+        m[i + 1, i] = -1.0
+    return m
+
+
+def _lsq_from_gram(stats: Any, i: int, nr: int, margin: float, fit_offset: bool) -> FloatArray:
+    """Partial sums (and offset) of the bounded least-squares P-I fit from streamed normal equations."""
+    ata, aty, _, _ = stats.normal_equations(i, offset=fit_offset)
+    m = _partial_sum_map(nr, fit_offset)
+    lb = np.full(m.shape[1], -np.inf)
+    lb[:nr] = margin
+    return bounded_lstsq_gram(m.T @ ata @ m, m.T @ aty, lb, np.full(m.shape[1], np.inf))
+
+
+def _coefficients(x: FloatArray, nr: int) -> FloatArray:
+    """Weights (and offset) from partial sums (and offset)."""
+    out = np.array(x, dtype=np.float64, copy=True)
+    out[:nr] = np.diff(np.concatenate([[0.0], x[:nr]]))
+    return out
+
+
+def _difference(whole: Any, part: Any, i: int, fit_offset: bool) -> tuple[FloatArray, FloatArray, float, int]:
+    """Normal equations of the rows in ``whole`` but not in ``part`` (statistics add over rows)."""
+    g1, b1, c1, n1 = whole.normal_equations(i, offset=fit_offset)
+    g0, b0, c0, n0 = part.normal_equations(i, offset=fit_offset)
+    return g1 - g0, b1 - b0, c1 - c0, n1 - n0
 
 
 def pi_regressors(u: FloatArray, thresholds: FloatArray) -> FloatArray:
@@ -60,8 +93,11 @@ def fit_pi(
         Fit a constant output offset too (sensors rarely read 0 at 0 V).
     delay : int or "auto"
         Samples by which ``y`` lags ``u`` (a sensor's delay); the fit pairs ``u[k]`` with
-        ``y[k + delay]``. ``"auto"`` tries 0..``max_auto_delay`` and keeps the one with the
-        lowest RMSE on the fitting data itself.
+        ``y[k + delay]``. ``"auto"`` tries 0..``max_auto_delay``: each delay is fitted (least
+        squares) on the first 70 % of the record, the one that predicts the last 30 % best is
+        kept (a delay chosen on the fitting data itself absorbs dynamics and predicts new data
+        worse), and the fit is redone on the whole record with it. The normal equations of every
+        delay come from two streamed passes, so this costs about two fits.
     margin : float, optional
         Smallest allowed partial sum of the weights (default 1e-3 of the data's mean slope):
         keeps the model invertible with a bounded inverse slope.
@@ -88,18 +124,19 @@ def fit_pi(
     u, y, _ = unpack_data(u, y)
     if method not in ("lsq", "pso"):
         raise ValueError(f"method must be 'lsq' or 'pso', got {method!r}")
-    if isinstance(delay, str):
-        if delay != "auto":
-            raise ValueError(f"delay must be a number of samples or 'auto', got {delay!r}")
-        # the lag that fits the *fitting* data best (no peeking at validation data)
-        kw = dict(thresholds=thresholds, u_max=u_max, fit_offset=fit_offset, margin=margin, seed=seed,
-                  n_particles=n_particles, max_iter=max_iter, weight_bounds=weight_bounds)
-        trials = [fit_pi(u, y, n, method, delay=d, **kw) for d in range(0, max_auto_delay + 1)]  # type: ignore[arg-type]
-        best = min(trials, key=lambda f: f.rmse)
-        best.info["delay_rmse"] = {f.delay: f.rmse for f in trials}
-        best.time_s = time.perf_counter() - t0
-        return best
-    us, ys = _pair(u, y, delay)
+    auto = isinstance(delay, str)
+    if auto and delay != "auto":
+        raise ValueError(f"delay must be a number of samples or 'auto', got {delay!r}")
+    if auto:
+        if isinstance(max_auto_delay, bool) or not isinstance(max_auto_delay, (int, np.integer)) or max_auto_delay < 0:
+            raise ValueError(f"max_auto_delay must be an integer >= 0, got {max_auto_delay!r}")
+        delays = list(range(0, int(max_auto_delay) + 1))
+        us, ys = _pair(u, y, 0)
+        if delays[-1] >= us.size // 2:
+            raise ValueError(f"max_auto_delay={max_auto_delay} is too long for {us.size} samples")
+    else:
+        us, ys = _pair(u, y, delay)  # type: ignore[arg-type]
+        delays = [0]
     if thresholds is None:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"n must be a positive integer, got {n!r}")
@@ -118,33 +155,44 @@ def fit_pi(
         )
     if margin is None:
         margin = 1e-3 * slope
-    z = pi_regressors(us, r)
     info: dict[str, Any] = {"n_operators": nr, "margin": margin}
+    if auto:
+        # the delay that predicts held-out data best (the last 30 %), from two passes of streamed
+        # normal equations for every delay at once: the fitting part's, and the whole record's
+        # (the held-out rows' are the difference)
+        n_fit = int(round(0.7 * us.size))
+        part = pi_gram(us[:n_fit], r, ys[:n_fit], delays=delays)
+        whole = pi_gram(us, r, ys, delays=delays)
+        hold = {}
+        for i, d in enumerate(delays):
+            x = _lsq_from_gram(part, i, nr, margin, fit_offset)
+            g, b, c, m = _difference(whole, part, i, fit_offset)
+            coef = _coefficients(x, nr)
+            hold[d] = float(np.sqrt(max(c - 2 * coef @ b + coef @ g @ coef, 0.0) / m))
+        delay = min(hold, key=lambda d: hold[d])
+        info["delay_holdout_rmse"] = hold
+        stats, i_d = whole, delays.index(delay)
+        us, ys = us[: us.size - delay], ys[delay:]
+    else:
+        stats, i_d = pi_gram(us, r, ys, delays=[0]), 0
 
     if method == "lsq":
-        # y = Z w + c with w = D s, s the partial sums: column i of Z D is z_i - z_{i+1}
-        zd = z.copy()
-        zd[:, :-1] -= z[:, 1:]
-        cols = [zd] + ([np.ones((us.size, 1))] if fit_offset else [])
-        a = np.hstack(cols)
-        lb = np.full(a.shape[1], -np.inf)
-        lb[:nr] = margin
-        sol = bounded_lstsq(a, ys, lb, np.full(a.shape[1], np.inf))
-        s = sol[:nr]
+        x = _lsq_from_gram(stats, i_d, nr, margin, fit_offset)
+        s = x[:nr]
         w = np.diff(np.concatenate([[0.0], s]))
-        offset = float(sol[nr]) if fit_offset else 0.0
-        nit, nfev, history, message = None, None, None, "bounded least squares (BVLS after QR): global optimum"
+        offset = float(x[nr]) if fit_offset else 0.0
+        nit, nfev, history, message = None, None, None, "bounded least squares (NNLS on the normal equations): global optimum"
         info["active_constraints"] = int(np.sum(s <= margin * (1 + 1e-9)))
     else:
         # eq. (9) for the whole swarm from the Gram matrix: RMSE^2 = w'Gw - 2b'w + c
-        if fit_offset:
-            zc = z - z.mean(axis=0)
-            yc = ys - ys.mean()
+        gram_z, zty, zsum, ysum, yty, m = (stats.gram[i_d], stats.zty[i_d], stats.zsum[i_d], float(stats.ysum[i_d]),
+                                            float(stats.yty[i_d]), float(stats.n_samples[i_d]))
+        if fit_offset:  # centred: the best offset for every particle analytically
+            gram = (gram_z - np.outer(zsum, zsum) / m) / m
+            bvec = (zty - zsum * ysum / m) / m
+            cval = (yty - ysum * ysum / m) / m
         else:
-            zc, yc = z, ys
-        gram = zc.T @ zc / us.size
-        bvec = zc.T @ yc / us.size
-        cval = float(yc @ yc / us.size)
+            gram, bvec, cval = gram_z / m, zty / m, yty / m
         span_u = float(np.ptp(us))
 
         def fitness(wmat: FloatArray) -> FloatArray:
@@ -159,12 +207,12 @@ def fit_pi(
                            seed=seed, progress=progress, callback=callback,
                            description=f"PSO, P-I weights ({nr})")
         w = res.x
-        offset = float(ys.mean() - z.mean(axis=0) @ w) if fit_offset else 0.0
+        offset = float((ysum - zsum @ w) / m) if fit_offset else 0.0
         nit, nfev, history, message = int(res.nit), int(res.nfev), res.history, res.message
         info["weight_bounds"] = [float(lo), float(hi)]
 
     model = PrandtlIshlinskii(r, w, offset=offset)
-    resid = ys - (z @ w + offset)
+    resid = ys - model.simulate(us)  # the event-driven kernel: no (N, n) matrix, exact residual
     rmse = float(np.sqrt(np.mean(resid**2)))
     return FitResult(model=model, rmse=rmse, method=method, n_samples=int(us.size),
                      time_s=time.perf_counter() - t0, nit=nit, nfev=nfev, history=history,
