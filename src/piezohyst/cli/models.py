@@ -5,14 +5,16 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ._common import console, freqs, print_json
+from ._common import check_sinusoids, console, freqs, print_json
 
 
 def cmd_models(args: argparse.Namespace) -> int:
+    dt = 1e-4
+    check_sinusoids(args.freq, 3, dt, cycles_flag="")  # before loading or allocating anything
+
     import piezohyst as ph
     from piezohyst import paper_values as pv
 
-    dt = 1e-4
     rows = []
     for freq in args.freq:
         u = ph.sinusoid(freq, 3, 0.0, 100.0, dt)
