@@ -32,8 +32,6 @@ def test_reproduce_writes_tables_figures_and_report(tmp_path, capsys):
     # the third table and the ablation (issue #7)
     assert len(res["table_piezohyst"]) == 6 and "Table III" in report and "Ablation" in report
     assert set(res["ablation"]) >= {"paper_pso_pi_ff", "lsq_pi_ff", "rate_pi_ff", "rate_pi_ff_fb", "rate_pi_ff_fb_ilc"}
-    # the whole run fits the 2-minute budget with room to spare (a generous bound, not a benchmark)
-    assert res["time_s"] < 120
     # refuses to overwrite without --force
     assert main(["reproduce", "--out", str(tmp_path)]) == 2
 

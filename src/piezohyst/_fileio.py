@@ -56,9 +56,12 @@ def dumps_strict(obj: Any, **kw: Any) -> str:
     return json.dumps(to_jsonable(obj), allow_nan=False, **kw)
 
 
-class OutputError(OSError):
+class OutputError(OSError, ValueError):
     """An output path that cannot be written: a file where a folder is expected, a folder where a
-    file is expected, a folder nobody can write in. The message names the path."""
+    file is expected, a folder nobody can write in. The message names the path.
+
+    Both an ``OSError`` and a ``ValueError`` (a bad value for a path), like
+    ``io.UnsupportedOperation``."""
 
 
 class OverwriteRefused(OutputError, FileExistsError):

@@ -19,7 +19,7 @@ def n_samples(freq: float, cycles: float, dt: float) -> int:
     """
     n = cycles / (freq * dt)
     if not n <= MAX_SAMPLES:
-        raise ValueError(f"{cycles:g} cycle(s) of freq={freq:g} Hz at dt={dt:g} s is {n:.3g} samples; the limit is "
+        raise ValueError(f"cycles={cycles:g} of freq={freq:g} Hz at dt={dt:g} s is {n:.3g} samples; the limit is "
                          f"{MAX_SAMPLES:.3g} (piezohyst.signals.MAX_SAMPLES)")
     return int(round(n))
 
