@@ -131,11 +131,13 @@ def _nearest_existing(p: Path) -> Path:
 def _probe_writable(folder: Path, target: Path) -> None:
     """Create and remove a temporary entry in ``folder`` (the only test of writability that also
     holds for root, read-only file systems and /proc)."""
-    try:
-        tmp = tempfile.mkdtemp(prefix=".piezohyst-probe-", dir=folder)
-    except OSError as exc:
-        raise OutputError(f"cannot write {target}: cannot create files in {folder} ({exc.strerror or exc})") from None
-    os.rmdir(tmp)
+    with deferred_signals():
+        try:
+            tmp = tempfile.mkdtemp(prefix=".piezohyst-probe-", dir=folder)
+        except OSError as exc:
+            raise OutputError(f"cannot write {target}: cannot create files in {folder} "
+                              f"({exc.strerror or exc})") from None
+        os.rmdir(tmp)
 
 
 def _check_parent(p: Path) -> None:
@@ -219,10 +221,12 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None], *,
     """
     p = check_output_file(path, force)
     p.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    os.close(fd)
-    tmp = Path(name)
+    tmp: Path | None = None
     try:
+        with deferred_signals():  # a signal now would leave the temporary file unnamed
+            fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+            os.close(fd)
+            tmp = Path(name)
         try:
             write(tmp)
         except OSError as exc:
@@ -234,8 +238,9 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None], *,
         with deferred_signals():
             _publish_file(tmp, p, force)
     finally:
-        with deferred_signals():
-            tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            with deferred_signals():
+                tmp.unlink(missing_ok=True)
     return p
 
 
@@ -347,7 +352,15 @@ class OutputFolder:
     def __enter__(self) -> Path:
         self.check()
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.tmp-", dir=self.path.parent))
+        try:
+            with deferred_signals():  # a signal now would leave the temporary folder unnamed
+                self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.tmp-", dir=self.path.parent))
+        except BaseException:
+            if self._tmp is not None:
+                with deferred_signals():
+                    _remove(self._tmp)
+                self._tmp = None
+            raise
         return self._tmp
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:

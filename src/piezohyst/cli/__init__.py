@@ -116,12 +116,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_in = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args_in
     args_in = [a for a in args_in if a != "--debug"]
-    parser = build_parser()
-    args = parser.parse_args(args_in)
-    args.debug = debug
-    if not getattr(args, "command", None):
-        parser.print_help()
-        return 0
     # SIGTERM/SIGHUP end the run like Ctrl-C: every finally runs (temporary files are removed)
     handlers = {}
     if threading.current_thread() is threading.main_thread():
@@ -129,8 +123,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             sig = getattr(signal, name, None)
             if sig is not None:
                 handlers[sig] = signal.signal(sig, _on_terminate)
-    prog = f"piezohyst {args.command}"
+    prog = "piezohyst"
+    parser: argparse.ArgumentParser | None = None
+    command = None
     try:
+        parser = build_parser()
+        args = parser.parse_args(args_in)
+        args.debug = debug
+        if not getattr(args, "command", None):
+            parser.print_help()
+            return 0
+        command = args.command
+        prog = f"piezohyst {command}"
         if debug:
             return int(args.func(args))
         with warnings.catch_warnings(record=True) as caught:
@@ -141,7 +145,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             text = one_line(w.message)
             if text not in seen:
                 seen.add(text)
-                print(f"{prog}: warning: {cli_spelling(text, _flags(parser, args.command))}", file=sys.stderr)
+                print(f"{prog}: warning: {cli_spelling(text, _flags(parser, command))}", file=sys.stderr)
         return code
     except KeyboardInterrupt as exc:
         if debug and not isinstance(exc, Terminated):
@@ -155,7 +159,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         users = isinstance(exc, _user_errors()) or isinstance(exc, (OSError, MemoryError)) or (
             isinstance(exc, (ValueError, TypeError)) and is_deliberate(exc))
         if users:
-            msg = cli_spelling(_message(exc), _flags(parser, args.command))
+            msg = cli_spelling(_message(exc), _flags(parser, command) if parser is not None else {})
             print(f"{prog}: error: {msg}", file=sys.stderr)
             return 2
         print(f"{prog}: internal error: {type(exc).__name__}: {_message(exc)[:300]} -- this is a bug in piezohyst, "
