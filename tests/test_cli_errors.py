@@ -83,6 +83,8 @@ def make_inputs(root: Path) -> dict[str, str]:
     text("nouy.csv", "a,b,c\n0,1,2\n1,2,3\n2,3,4\n")
     text("backwards.csv", "t,u,y\n0,1,2\n0.002,2,3\n0.001,3,4\n0.003,3,4\n")
     text("const.csv", "t,u,y\n" + "\n".join(f"{a:.6g},5,1" for a in t[:50]) + "\n")
+    text("yconst.csv", "t,u,y\n" + "\n".join(f"{a:.6g},{b:.6g},1" for a, b in zip(t, u)) + "\n")
+    text("tiny.csv", "t,u,y\n" + "\n".join(f"{0.01 * i:g},{i % 3},{0.1 * (i % 3) + 0.01 * i:g}" for i in range(6)) + "\n")
     np.savez(root / "data.npz", t=t, u=u, y=y)
     f["npz"] = root / "data.npz"
     np.savez(root / "pickled.npz", t=t, u=np.array([{"a": 1}], dtype=object), y=y)
@@ -183,10 +185,13 @@ CASES: list[Case] = [
     *[C(f"models --freq {v}", ["models", "--freq", v], "--freq")
       for v in ("nan", "inf", "-inf", "0", "-1", "abc", "1,,x", "1e-5", "1e300", "5000", "1,-3", "", "1e-300")],
     C("models extra", "models --json extra", "extra"),
+    C("models --freq near Nyquist", "models --freq 4999", "--freq"),
     # rig: numbers
     *[C(f"rig --freq {v}", ["rig", "--freq", v], "--freq") for v in ("nan", "inf", "0", "-2", "1e-7", "1e6", "x")],
     *[C(f"rig --cycles {v}", ["rig", "--freq", "1", "--cycles", v], "--cycles")
       for v in ("nan", "inf", "0", "-1", "1e12", "abc", "1e-9")],
+    C("rig --cycles half", "rig --freq 1 --cycles 0.5", "--cycles"),
+    C("rig --freq near Nyquist", "rig --freq 4999 --cycles 2", "--freq"),
     C("rig --u-low nan", "rig --freq 1 --cycles 1 --u-low nan", "--u-low"),
     C("rig --u-low inf", "rig --freq 1 --cycles 1 --u-low inf", "--u-low"),
     C("rig --u-high nan", "rig --freq 1 --cycles 1 --u-high nan", "--u-high"),
@@ -241,6 +246,9 @@ CASES: list[Case] = [
     C("track --kd 1e3", "track --model {pi} --freq 1 --cycles 2 --feedback pid --kd 1e3", "--kd", "gains"),
     C("track unreachable with PID", "track --model {pi} --freq 1 --cycles 3 --low 0 --high 50 --feedback pid --ki 500",
       "--high", "--low", "gains"),
+    C("track reference below the stage", "track --model {pi} --freq 1 --cycles 2 --low -100 --high -99",
+      "--low", "--high"),
+    C("track best with gains", "track --method best --feedback pid --ki 500", "--ki"),
     C("track gains without --feedback pid", "track --model {pi} --freq 1 --cycles 2 --ki 500", "--feedback"),
     C("track --seed -1", "track --model {pi} --freq 1 --cycles 2 --seed -1", "--seed"),
     C("track --rig-settings nested", "track --model {pi} --freq 1 --cycles 2 --rig-settings {rs_nested}", "{rs_nested}"),
@@ -250,6 +258,11 @@ CASES: list[Case] = [
     *[C(f"identify {k}", ["identify", "{%s}" % k, "--model", "pi", "--method", "lsq"], "{%s}" % k)
       for k in ("missing", "a_dir", "nan", "ragged", "word", "one", "empty", "binary", "nouy", "backwards",
                 "pickled", "fake", "scaled", "const")],
+    C("identify y constant", "identify {yconst} --model pi --method lsq", "{yconst}"),
+    C("identify y constant auto", "identify {yconst}", "{yconst}"),
+    C("identify too few samples", "identify {tiny} --model auto", "{tiny}"),
+    C("identify too few for pi", "identify {tiny} --model pi --method lsq", "{tiny}"),
+    C("identify --n huge preisach", "identify {data} --model preisach --n 900", "--n"),
     C("identify headerless without --fs", "identify {nohdr} --u-col 0 --y-col 1", "--fs"),
     C("identify --fs 0", "identify {nohdr} --u-col 0 --y-col 1 --fs 0", "--fs"),
     C("identify --fs -5", "identify {nohdr} --u-col 0 --y-col 1 --fs -5", "--fs"),
@@ -425,6 +438,23 @@ def test_a_numpy_value_error_from_deep_inside_is_internal(monkeypatch, capsys):
     monkeypatch.setattr(models, "cmd_models", broken)
     assert main(["models"]) == 1
     assert "internal error" in capsys.readouterr().err
+
+
+def test_a_fit_that_finds_nothing_names_the_data_file(tmp_path, monkeypatch, capsys):
+    """Every PSO particle diverging (e.g. data in the wrong units) is the data's problem: exit 2."""
+    import piezohyst as ph
+    from piezohyst._validation import FitError
+    from piezohyst.cli import main
+
+    files = make_inputs(tmp_path)
+
+    def diverged(*a, **k):
+        raise FitError("Bouc-Wen identification failed: every particle's simulation diverged")
+
+    monkeypatch.setattr(ph, "fit_bouc_wen", diverged)
+    assert main(["identify", files["data"], "--model", "bouc-wen", "--json"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and files["data"] in err and "diverged" in err
 
 
 def test_debug_anywhere_shows_the_traceback(capsys):

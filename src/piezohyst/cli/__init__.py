@@ -103,8 +103,8 @@ def _message(exc: BaseException) -> str:
     if isinstance(exc, OSError) and not isinstance(exc, _user_errors()) and exc.filename:
         return f"{exc.filename}: {exc.strerror or exc}"
     if isinstance(exc, MemoryError):
-        return (f"not enough memory for this run ({one_line(exc) or 'MemoryError'}); "
-                "ask for shorter records (fewer --cycles, a higher --freq) or free memory")
+        return (f"not enough memory for this run ({one_line(exc) or 'MemoryError'}); ask for less (shorter "
+                "records, fewer parameters) or free memory")
     return one_line(exc) or type(exc).__name__
 
 

@@ -311,10 +311,14 @@ def rig_rate_note(args: argparse.Namespace) -> str:
 
 
 def guarded(call: Callable[[], Any], prefix: str) -> Any:
-    """Run ``call``; a ValueError/TypeError raised by one of our checks becomes a UsageError
-    starting with ``prefix`` (the file or flag it is about). Anything else passes through."""
+    """Run ``call``; a ValueError/TypeError raised by one of our checks, or a FitError, becomes a
+    UsageError starting with ``prefix`` (the file or flag it is about). Anything else passes through."""
+    from .._validation import FitError
+
     try:
         return call()
+    except FitError as exc:  # the data gave the fit nothing to converge on
+        raise UsageError(f"{prefix}: {one_line(exc)}") from exc
     except (ValueError, TypeError) as exc:
         if is_deliberate(exc) and prefix not in str(exc):
             raise UsageError(f"{prefix}: {one_line(exc)}") from exc

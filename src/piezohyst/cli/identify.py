@@ -26,11 +26,15 @@ def _delay(text: str) -> Any:
 
 
 def _check_magnitude(ds: Any, source: str) -> None:
-    """Refuse values whose squares overflow double precision in the fit (they give RMSE inf)."""
+    """Refuse a record with nothing to identify (a constant column), or values whose squares
+    overflow double precision in the fit (they give RMSE inf)."""
     import numpy as np
 
     n = max(len(ds), 1)
     for name, arr in (("u", ds.u), ("y", ds.y)):
+        if float(np.ptp(arr)) == 0.0:
+            flag = "--u-col" if name == "u" else "--y-col"
+            raise UsageError(f"{source}: {name} is constant ({arr[0]:g}): nothing to identify (check {flag})")
         peak = float(np.max(np.abs(arr)))
         if peak * np.sqrt(n) > 1e150:  # the sum of squared errors would pass 1e300, near the float64 limit
             raise UsageError(f"{source}: {name} reaches {peak:.3g}; squares of values this large overflow double "
@@ -72,8 +76,12 @@ def cmd_identify(args: argparse.Namespace) -> int:
     train = ds.slice(start, stop) if (start is not None or stop is not None) else ds
     if isinstance(args.delay, int) and args.delay > len(train) - 2:
         raise UsageError(f"--delay {args.delay} leaves fewer than 2 of the {len(train)} training samples")
-    if args.n is not None and args.n >= len(train):
-        raise UsageError(f"--n {args.n} is not below the {len(train)} training samples: too many parameters to fit")
+    if args.n is not None:
+        # parameters the structure holds: n weights (P-I), n(n+1)/2 cells (a Preisach grid of n levels)
+        params = args.n * (args.n + 1) // 2 if kind in ("preisach", "auto") else args.n
+        if params >= len(train):
+            raise UsageError(f"--n {args.n} makes {params} parameters for the {len(train)} training samples: too many "
+                             f"to fit")
     # validation sets: (name, data simulated from its first sample, first sample scored)
     validation = []
     vstart, vstop = args.validate

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import (UsageError, add_rig_options, check_sinusoids, console, finite_float, freqs, positive_float,
-                      print_json, rig_from_args, rig_rate_note)
+from ._common import (UsageError, add_rig_options, check_sinusoids, console, finite_float, freqs, guarded,
+                      positive_float, print_json, rig_from_args, rig_rate_note)
 
 #: The files ``rig --out`` writes (one set, with its manifest.json)
 RIG_FILES = ("fig2_loops.png", "rig_loops.csv")
@@ -15,6 +15,8 @@ RIG_FILES = ("fig2_loops.png", "rig_loops.csv")
 def cmd_rig(args: argparse.Namespace) -> int:
     from .._fileio import OutputFolder
 
+    if args.cycles < 1:
+        raise UsageError(f"--cycles must be at least 1 (a loop needs a whole cycle), got {args.cycles:g}")
     if not args.u_low < args.u_high:
         raise UsageError(f"--u-low ({args.u_low:g} V) must be below --u-high ({args.u_high:g} V)")
     out = Path(args.out) if args.out else None
@@ -40,7 +42,7 @@ def cmd_rig(args: argparse.Namespace) -> int:
         u = ph.sinusoid(f, args.cycles, args.u_low, args.u_high, rig.dt)
         ds = rig.excite(u)
         period = int(round(1 / (f * rig.dt)))
-        lf = ph.loop_figures(ds.u, ds.y, period=period)
+        lf = guarded(lambda: ph.loop_figures(ds.u, ds.y, period=period), f"--freq {f:g} Hz")
         rows.append({"freq_hz": f, "span_um": lf.span, "width_um": lf.width, "width_percent": lf.width_percent,
                      "clipped_samples": ds.meta["clipped_samples"]})
         runs.append((f"{f:g} Hz", ds.u[-period:], ds.y[-period:]))
