@@ -425,6 +425,15 @@ def test_import_and_kernels_work_where_nothing_can_be_written(read_only_install)
 
 
 # ------------------------------------------------------------------------------------------------
+def test_importing_the_commission_module_keeps_the_commission_function():
+    """``piezohyst.commission`` (the module) must not shadow ``ph.commission`` (the function)."""
+    code = ("import piezohyst as ph; from piezohyst.commission import commissioning_excitation; "
+            "print(callable(ph.commission) and ph.commission.__name__ == 'commission')")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    assert r.stdout.strip() == "True", r.stderr
+
+
 def test_no_wall_clock_assertions_in_the_tests():
     """Timings live in `make bench` as ratios; a test asserting a duration fails on a busy machine."""
     pattern = re.compile(r"assert[^\n]*(time_s|_time\b|elapsed|perf_counter|time\.time|monotonic|duration)[^\n]*<")
