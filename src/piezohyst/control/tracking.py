@@ -23,7 +23,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .._validation import FloatArray, as_signal
+from .._validation import FloatArray, as_scalar, as_signal
 from ..signals import cycles_after_first, estimate_period
 
 
@@ -246,7 +246,8 @@ def track(
     feedback_at : {"reference", "command"}
         Where the PID's output enters (see :mod:`piezohyst.control.pid`).
     period : int, optional
-        The reference's period in samples (estimated when omitted).
+        The reference's period in samples (estimated when omitted). Given, it must leave at
+        least one whole cycle after the first (the start-up, which is not scored).
     divergence_limit : float, optional
         Stop with :class:`UnstableLoopError` when |y - r| exceeds this (µm); default ten times
         the reference's span plus 10 µm. With feedback on, the run also stops when, after the
@@ -266,9 +267,8 @@ def track(
     """
     r = as_signal("reference", reference, min_length=2)
     period = _check_period(period, r.size)
-    if divergence_limit is not None and not (isinstance(divergence_limit, (int, float)) and divergence_limit > 0
-                                             and math.isfinite(divergence_limit)):
-        raise ValueError(f"divergence_limit must be a positive finite number of um, got {divergence_limit!r}")
+    if divergence_limit is not None:
+        divergence_limit = as_scalar("divergence_limit", divergence_limit, positive=True)
     dt = getattr(plant, "dt", None)
     if not isinstance(dt, (int, float)) or not dt > 0:
         raise TypeError("plant must follow the Plant protocol: a positive float 'dt', reset() and step(u)")
