@@ -72,7 +72,10 @@ def is_deliberate(exc: BaseException) -> bool:
     pkg = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     if not os.path.abspath(filename).startswith(pkg + os.sep):
         return False
-    return linecache.getline(filename, tb.tb_lineno).lstrip().startswith("raise")
+    line = linecache.getline(filename, tb.tb_lineno)
+    if not line:  # installed without sources (.pyc only): from our code, so give the user the benefit
+        return True
+    return line.lstrip().startswith("raise")
 
 
 def cli_spelling(message: str, flags: dict[str, str]) -> str:
