@@ -86,7 +86,6 @@ def test_benchmark_command_beats_the_published_results(capsys):
     assert main(["benchmark", "bouc-wen", "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["test_rmse_m"]["multisine"] < 7.53e-6  # best published: 7.53e-6 m
-    assert res["identification_time_s"] < 120
     assert res["identified"]["k"] == pytest.approx(5e4, rel=0.02)
 
 

@@ -1,14 +1,37 @@
-"""Writing files safely: atomically, never over a user's file unless asked, saying who wrote it."""
+"""Writing files safely: atomically, never over a user's file unless asked, saying who wrote it.
+
+Three promises, for one file (:func:`atomic_write`) and for a set of files in one folder
+(:class:`OutputFolder`):
+
+* **whole or absent**: the content is written to a temporary name beside the target and moved
+  into place in one step, so an interrupted run (an error, Ctrl-C, SIGTERM) leaves the previous
+  file or folder, or the new one, never half of one; its temporary files are removed;
+* **exclusive**: without ``force`` the final name is taken with an operation that fails if the
+  name exists (``os.link`` for a file, ``rename`` onto an absent or empty folder), so a file that
+  appeared while the run worked is never replaced: not check-then-replace;
+* **ordinary permissions**: outputs get ``0o666 & ~umask`` (folders ``0o777 & ~umask``), as
+  ``open()`` would give them, not the private mode of a temporary file.
+
+Every refusal is an :class:`OutputError` (an ``OSError``) naming the path and the problem;
+:class:`OverwriteRefused` (also a ``FileExistsError``) when the target exists.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
+import errno
+import hashlib
+import json
 import math
 import os
+import shutil
+import signal
 import sys
 import tempfile
+import threading
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable, Iterator
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -28,8 +51,21 @@ def to_jsonable(obj: Any) -> Any:
     return obj
 
 
-class OverwriteRefused(FileExistsError):
-    """The output file exists and ``force`` was not given."""
+def dumps_strict(obj: Any, **kw: Any) -> str:
+    """``json.dumps`` of :func:`to_jsonable` data, refusing NaN/inf (strict JSON every reader parses)."""
+    return json.dumps(to_jsonable(obj), allow_nan=False, **kw)
+
+
+class OutputError(OSError, ValueError):
+    """An output path that cannot be written: a file where a folder is expected, a folder where a
+    file is expected, a folder nobody can write in. The message names the path.
+
+    Both an ``OSError`` and a ``ValueError`` (a bad value for a path), like
+    ``io.UnsupportedOperation``."""
+
+
+class OverwriteRefused(OutputError, FileExistsError):
+    """The output exists (or appeared while the run worked) and ``force`` was not given."""
 
 
 def producer() -> str:
@@ -41,35 +77,358 @@ def producer() -> str:
     return f"piezohyst {__version__}; command: {argv}; at {now}"
 
 
-def check_writable(path: str | os.PathLike[str], force: bool) -> Path:
-    """Refuse to overwrite an existing file unless ``force``; return the path."""
+# ------------------------------------------------------------------------------------------------
+# permissions and signals
+def current_umask() -> int:
+    """The process's umask, read without changing it where the system tells it (Linux >= 4.7)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    with _UMASK_LOCK:  # elsewhere: set and restore (not atomic for other threads, hence the lock)
+        mask = os.umask(0o022)
+        os.umask(mask)
+    return mask
+
+
+_UMASK_LOCK = threading.Lock()
+
+
+def _chmod_ordinary(path: Path, folder: bool = False) -> None:
+    """Give ``path`` the mode ``open()``/``mkdir()`` would have given it under the current umask."""
+    os.chmod(path, (0o777 if folder else 0o666) & ~current_umask())
+
+
+@contextlib.contextmanager
+def deferred_signals() -> Iterator[None]:
+    """Hold SIGINT/SIGTERM/SIGHUP during a few system calls that must not be split (publishing an
+    output and removing its temporary name); they are delivered right after."""
+    sigs = {signal.SIGINT, signal.SIGTERM} | ({signal.SIGHUP} if hasattr(signal, "SIGHUP") else set())
+    can = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+    if can:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    try:
+        yield
+    finally:
+        if can:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+# ------------------------------------------------------------------------------------------------
+# checks (cheap, before any long work)
+def _nearest_existing(p: Path) -> Path:
+    q = p
+    while not os.path.lexists(q):
+        if q.parent == q:
+            break
+        q = q.parent
+    return q
+
+
+def _probe_writable(folder: Path, target: Path) -> None:
+    """Create and remove a temporary entry in ``folder`` (the only test of writability that also
+    holds for root, read-only file systems and /proc)."""
+    with deferred_signals():
+        try:
+            tmp = tempfile.mkdtemp(prefix=".piezohyst-probe-", dir=folder)
+        except OSError as exc:
+            raise OutputError(f"cannot write {target}: cannot create files in {folder} "
+                              f"({exc.strerror or exc})") from None
+        os.rmdir(tmp)
+
+
+def _check_parent(p: Path) -> None:
+    """The folder that will hold ``p`` exists (or can be created) and can be written."""
+    parent = p.parent
+    anc = _nearest_existing(parent)
+    if not anc.is_dir():
+        raise OutputError(f"cannot write {p}: {anc} is a file, not a folder")
+    _probe_writable(anc, p)
+
+
+def check_output_file(path: str | os.PathLike[str], force: bool) -> Path:
+    """Refuse, before any work, an output file that cannot be written or would replace a file
+    without ``force``; return the path.
+
+    Raises
+    ------
+    OverwriteRefused
+        ``path`` exists and ``force`` is false.
+    OutputError
+        ``path`` is a folder, or its folder cannot be created or written.
+    """
     p = Path(path)
-    if p.exists() and not force:
+    if p.is_dir():
+        raise OutputError(f"{p} is a folder; give a file name")
+    if os.path.lexists(p) and not force:
         raise OverwriteRefused(f"{p} exists; not overwriting it (pass force=True / --force)")
-    if p.exists() and p.is_dir():
-        raise IsADirectoryError(f"{p} is a directory, not a file")
+    _check_parent(p)
     return p
 
 
-def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None], *, force: bool = False) -> Path:
-    """Call ``write(tmp_path)`` then rename the temporary file onto ``path`` in one step.
+#: The former name (kept: other modules and user code call it).
+check_writable = check_output_file
 
-    A crash or error part-way leaves the old file (or no file) in place, never half a file.
-    """
-    p = check_writable(path, force)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+
+def _remove(path: Path) -> None:
     try:
-        write(tmp_path)
-        os.replace(tmp_path, p)
-    except BaseException:
-        tmp_path.unlink(missing_ok=True)
-        raise
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+# ------------------------------------------------------------------------------------------------
+# one file
+def _publish_file(tmp: Path, p: Path, force: bool) -> None:
+    """Move the finished ``tmp`` to ``p``: replacing only with ``force``, else exclusively."""
+    if force:
+        if p.is_dir():
+            raise OutputError(f"{p} is a folder; give a file name")
+        os.replace(tmp, p)
+        return
+    try:
+        os.link(tmp, p)  # fails if p exists: never replaces a file that appeared meanwhile
+    except FileExistsError:
+        raise OverwriteRefused(f"{p} appeared while this run worked; not replacing it (pass force=True / --force)") from None
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EXDEV, errno.EMLINK, errno.EACCES):
+            raise
+        # no hard links here (some network and FAT file systems): take the name exclusively,
+        # then move the content onto it
+        try:
+            fd = os.open(p, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600)
+        except FileExistsError:
+            raise OverwriteRefused(f"{p} appeared while this run worked; not replacing it (pass force=True / --force)") from None
+        os.close(fd)
+        os.replace(tmp, p)
+        return
+    tmp.unlink()
+
+
+def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None], *, force: bool = False) -> Path:
+    """Call ``write(tmp_path)``, then move the temporary file to ``path`` in one step.
+
+    A crash or an error part-way leaves the old file (or no file) in place, never half a file,
+    and no temporary file. Without ``force`` an existing ``path`` is refused up front, and one
+    that appeared while ``write`` ran is not replaced (:class:`OverwriteRefused`). The file gets
+    the ordinary mode ``0o666 & ~umask``.
+    """
+    p = check_output_file(path, force)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp: Path | None = None
+    try:
+        with deferred_signals():  # a signal now would leave the temporary file unnamed
+            fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+            os.close(fd)
+            tmp = Path(name)
+        try:
+            write(tmp)
+        except OSError as exc:
+            if isinstance(exc, OutputError):
+                raise
+            # name the file the user asked for, not the hidden temporary one
+            raise OutputError(f"cannot write {p}: {exc.strerror or exc}") from exc
+        _chmod_ordinary(tmp)
+        with deferred_signals():
+            _publish_file(tmp, p, force)
+    finally:
+        if tmp is not None:
+            with deferred_signals():
+                tmp.unlink(missing_ok=True)
     return p
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str, *, force: bool = False) -> Path:
     """Write ``text`` (UTF-8) atomically."""
     return atomic_write(path, lambda t: t.write_text(text, encoding="utf-8"), force=force)
+
+
+# ------------------------------------------------------------------------------------------------
+# a set of files
+MANIFEST = "manifest.json"
+
+
+def _renameat2(src: Path, dst: Path, flags: int) -> bool:
+    """Linux ``renameat2``; False when the system or file system does not offer it."""
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd = -100
+    rc = fn(at_fdcwd, os.fsencode(src), at_fdcwd, os.fsencode(dst), ctypes.c_uint(flags))
+    if rc == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(dst))
+
+
+_RENAME_NOREPLACE, _RENAME_EXCHANGE = 1, 2
+
+
+def _manifest_files(folder: Path) -> set[str]:
+    try:
+        doc = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+        return {str(k) for k in doc.get("files", {})}
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return set()
+
+
+class OutputFolder:
+    """A set of files written into one folder as a whole (a run's figures, report and results).
+
+    The files are written into a temporary folder beside ``path`` (``.NAME.tmp-XXXX``) with a
+    ``manifest.json`` (each file's size and SHA-256, and what wrote them) written last; the
+    temporary folder is then moved onto ``path`` in one step. An interrupted or failed run
+    leaves the previous set, or nothing; two runs racing for one folder leave one whole set,
+    never a mix.
+
+    * ``path`` absent or empty: the set is moved into place; if files appeared there meanwhile,
+      the move fails and nothing is replaced (:class:`OverwriteRefused`).
+    * ``path`` holds files: refused without ``force``; with ``force`` it must hold nothing but a
+      previous set of the same files (``names``, the manifest and what the manifest lists), and
+      the two folders are exchanged in one step (Linux ``renameat2``; elsewhere two renames).
+      A folder holding other files is never replaced: those files would be lost.
+
+    Use :meth:`check` before a long run, then ``with folder as tmp:`` to write the files into
+    ``tmp``; the set is published when the block ends without an exception.
+
+    Parameters
+    ----------
+    path : path
+        The folder.
+    names : iterable of str
+        The files of the set (others may be added; these are the ones a previous set may hold).
+    force : bool
+        Replace a previous set.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], names: Iterable[str], *, force: bool = False):
+        self.path = Path(path)
+        self.names = set(names)
+        self.force = bool(force)
+        self._tmp: Path | None = None
+
+    # -- checks -----------------------------------------------------------------------------
+    def _foreign(self, folder: Path) -> list[str]:
+        allowed = self.names | {MANIFEST} | _manifest_files(folder)
+        return sorted(n for n in os.listdir(folder) if n not in allowed)
+
+    def check(self) -> Path:
+        """Refuse now, before the work, what :meth:`publish` would refuse; return the path."""
+        p = self.path
+        if os.path.lexists(p) and not p.is_dir():
+            raise OutputError(f"{p} is a file, not a folder")
+        anc = _nearest_existing(p.parent)
+        if not anc.is_dir():
+            raise OutputError(f"cannot write {p}: {anc} is a file, not a folder")
+        _probe_writable(anc, p)
+        if p.is_dir():
+            entries = sorted(os.listdir(p))
+            if entries and not self.force:
+                raise OverwriteRefused(f"{p} already holds files ({_few(entries)}); not replacing them "
+                                       f"(pass force=True / --force to replace a previous output, or give a new folder)")
+            if entries:
+                foreign = self._foreign(p)
+                if foreign:
+                    raise OutputError(f"{p} holds files this command did not write ({_few(foreign)}); not "
+                                      f"replacing the folder even with force: give a new or empty folder")
+        return p
+
+    # -- writing ----------------------------------------------------------------------------
+    def __enter__(self) -> Path:
+        self.check()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            with deferred_signals():  # a signal now would leave the temporary folder unnamed
+                self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.tmp-", dir=self.path.parent))
+        except BaseException:
+            if self._tmp is not None:
+                with deferred_signals():
+                    _remove(self._tmp)
+                self._tmp = None
+            raise
+        return self._tmp
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        tmp, self._tmp = self._tmp, None
+        if tmp is None:
+            return
+        try:
+            if exc_type is None:
+                self._publish(tmp)
+        finally:
+            with deferred_signals():
+                _remove(tmp)
+
+    def _write_manifest(self, tmp: Path) -> None:
+        files = {}
+        for f in sorted(tmp.iterdir()):
+            if f.name == MANIFEST or not f.is_file():
+                continue
+            h = hashlib.sha256(f.read_bytes()).hexdigest()
+            files[f.name] = {"bytes": f.stat().st_size, "sha256": h}
+            _chmod_ordinary(f)
+        doc = {"producer": producer(), "files": files}
+        (tmp / MANIFEST).write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        _chmod_ordinary(tmp / MANIFEST)
+        _chmod_ordinary(tmp, folder=True)
+
+    def _publish(self, tmp: Path) -> None:
+        self._write_manifest(tmp)
+        p = self.path
+        appeared = (f"{p} received files while this run worked; not replacing them "
+                    f"(pass force=True / --force to replace a previous output)")
+        with deferred_signals():
+            if not os.path.lexists(p) or (p.is_dir() and not os.listdir(p)):
+                try:
+                    # onto an absent name, or an empty folder: fails if files appeared meanwhile
+                    os.rename(tmp, p)
+                except OSError as exc:
+                    if exc.errno in (errno.EEXIST, errno.ENOTEMPTY, errno.ENOTDIR, errno.EISDIR):
+                        raise OverwriteRefused(appeared) from None
+                    raise
+                return
+            if not p.is_dir():
+                raise OutputError(f"{p} is a file, not a folder")
+            if not self.force:
+                raise OverwriteRefused(appeared)
+            foreign = self._foreign(p)
+            if foreign:
+                raise OutputError(f"{p} holds files this command did not write ({_few(foreign)}); not replacing "
+                                  f"the folder even with force: give a new or empty folder")
+            if _renameat2(tmp, p, _RENAME_EXCHANGE):
+                # tmp now holds the previous set; a file someone put in p between the check and the
+                # exchange would be lost with it: put everything back and refuse
+                late = self._foreign(tmp)
+                if late:
+                    _renameat2(tmp, p, _RENAME_EXCHANGE)
+                    raise OutputError(f"{p} received other files ({_few(late)}) while this run worked; "
+                                      f"not replacing it")
+                return
+            old = Path(tempfile.mkdtemp(prefix=f".{p.name}.old-", dir=p.parent))
+            os.rmdir(old)
+            os.rename(p, old)
+            try:
+                os.rename(tmp, p)
+            except OSError:
+                os.rename(old, p)
+                raise
+            _remove(old)
+
+
+def _few(names: list[str], k: int = 3) -> str:
+    return ", ".join(names[:k]) + (f" and {len(names) - k} more" if len(names) > k else "")

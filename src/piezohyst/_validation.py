@@ -11,6 +11,11 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 
 
+class FitError(RuntimeError):
+    """An identification that found no model in the data it was given (e.g. every candidate's
+    simulation diverged): the data's fault (units, scale), not a bug. A ``RuntimeError``."""
+
+
 def as_signal(name: str, value: Any, *, min_length: int = 1) -> FloatArray:
     """Return ``value`` as a 1-D, finite float64 array or raise naming ``name``."""
     if isinstance(value, (str, bytes)):

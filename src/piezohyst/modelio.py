@@ -21,7 +21,9 @@ colleague cannot run code.
 from __future__ import annotations
 
 import json
+import math
 import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +66,7 @@ def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
         kind = kind_of(model)
     except TypeError as exc:
         raise TypeError(f"cannot save a {type(model).__name__}: {exc}") from None
+    _check_finite(model.to_dict(), f"cannot save the {kind} model: parameter")
     unit = model_units(model)
     if units:
         unit.update(units)
@@ -83,6 +86,26 @@ def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
     if extra:
         doc["extra"] = extra
     return _clean(doc)
+
+
+def _check_finite(obj: Any, what: str, where: str = "") -> None:
+    """Refuse NaN/inf anywhere in a model's parameters (they would be written as null, and the
+    file would not load back)."""
+    import numpy as np
+
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            _check_finite(v, what, f"{where}.{k}" if where else str(k))
+    elif isinstance(obj, np.ndarray) and obj.dtype.kind in "fc":
+        bad = ~np.isfinite(obj)
+        if bad.any():
+            i = int(np.argmax(bad.ravel()))
+            raise ValueError(f"{what} {where}[{i}] is {obj.ravel()[i]}; a model file holds finite numbers only")
+    elif isinstance(obj, (list, tuple, np.ndarray)):
+        for i, v in enumerate(obj):
+            _check_finite(v, what, f"{where}[{i}]")
+    elif isinstance(obj, (float, np.floating)) and not math.isfinite(float(obj)):
+        raise ValueError(f"{what} {where} is {float(obj)}; a model file holds finite numbers only")
 
 
 def save_model(model: Any, path: str | os.PathLike[str], *, fit: Any = None, dataset: Any = None,
@@ -161,20 +184,53 @@ def model_from_dict(doc: Any, *, source: str = "model") -> Any:
         raise ModelFileError(f"{source}: {exc}") from None
 
 
+def _strict_loads(text: str, source: str) -> Any:
+    """JSON as the standard defines it: NaN, Infinity and numbers beyond float range are refused."""
+    def constant(name: str) -> Any:
+        raise ModelFileError(f"{source}: {name} is not a JSON number; a model file holds finite numbers only")
+
+    def number(text: str) -> float:
+        v = float(text)
+        if not math.isfinite(v):
+            raise ModelFileError(f"{source}: the number {text[:40]} is beyond double precision")
+        return v
+
+    return json.loads(text, parse_constant=constant, parse_float=number)
+
+
 def load_model_document(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """The raw JSON document of a model file (model, fit figures, data hash)."""
+    """The raw JSON document of a model file (model, fit figures, data hash).
+
+    Every problem is a :class:`ModelFileError` naming the file: missing, a folder, not a regular
+    file, larger than :data:`MAX_FILE_BYTES`, not UTF-8, not strict JSON (NaN and Infinity are
+    not JSON), nested deeper than :data:`MAX_DEPTH`.
+    """
     p = Path(path)
     try:
-        if p.stat().st_size > MAX_FILE_BYTES:
-            raise ModelFileError(f"{p}: {p.stat().st_size} bytes is too large for a model file "
+        st = p.stat()
+        if stat.S_ISDIR(st.st_mode):
+            raise ModelFileError(f"{p}: is a folder, not a model file")
+        if not stat.S_ISREG(st.st_mode):
+            raise ModelFileError(f"{p}: not a regular file (a device or a pipe is not a model file)")
+        if st.st_size > MAX_FILE_BYTES:
+            raise ModelFileError(f"{p}: {st.st_size} bytes is too large for a model file "
                                  f"(the limit is {MAX_FILE_BYTES} bytes)")
-        text = p.read_text(encoding="utf-8")
+        with open(p, "rb") as fh:
+            raw = fh.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
         raise ModelFileError(f"{p}: no such file") from None
-    except (IsADirectoryError, UnicodeDecodeError, PermissionError) as exc:
-        raise ModelFileError(f"{p}: cannot read it as a model file ({exc})") from None
+    except OSError as exc:
+        raise ModelFileError(f"{p}: cannot read it ({exc.strerror or exc})") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise ModelFileError(f"{p}: too large for a model file (the limit is {MAX_FILE_BYTES} bytes)")
+    if not raw.strip():
+        raise ModelFileError(f"{p}: the file is empty")
     try:
-        doc = json.loads(text)
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ModelFileError(f"{p}: not a text file (cannot decode it as UTF-8); a model file is JSON") from None
+    try:
+        doc = _strict_loads(text, str(p))
     except json.JSONDecodeError as exc:
         raise ModelFileError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
     except RecursionError:

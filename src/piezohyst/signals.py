@@ -6,10 +6,22 @@ import numpy as np
 
 from ._validation import FloatArray, as_scalar, as_signal
 
+#: The longest signal these generators build (samples): 400 MB of float64. Beyond it a request is
+#: almost surely a unit mistake (a frequency in kHz given as Hz, a dt in ms given as s), and would
+#: exhaust memory before failing.
+MAX_SAMPLES = 50_000_000
+
 
 def n_samples(freq: float, cycles: float, dt: float) -> int:
-    """Samples in ``cycles`` periods of ``freq`` Hz at step ``dt`` (rounded to the nearest)."""
-    return int(round(cycles / (freq * dt)))
+    """Samples in ``cycles`` periods of ``freq`` Hz at step ``dt`` (rounded to the nearest).
+
+    Raises ValueError (naming the parameters) when that is more than :data:`MAX_SAMPLES`.
+    """
+    n = cycles / (freq * dt)
+    if not n <= MAX_SAMPLES:
+        raise ValueError(f"cycles={cycles:g} of freq={freq:g} Hz at dt={dt:g} s is {n:.3g} samples; the limit is "
+                         f"{MAX_SAMPLES:.3g} (piezohyst.signals.MAX_SAMPLES)")
+    return int(round(n))
 
 
 def sinusoid(
@@ -36,8 +48,10 @@ def sinusoid(
     high = as_scalar("high", high)
     if high <= low:
         raise ValueError(f"high must be greater than low, got low={low}, high={high}")
-    if freq * dt >= 0.5:
+    if not freq * dt < 0.5:
         raise ValueError(f"freq={freq} Hz is not below the Nyquist frequency 1/(2 dt) = {0.5 / dt} Hz")
+    if start not in ("low", "mid"):
+        raise ValueError(f"start must be 'low' or 'mid', got {start!r}")
     n = n_samples(freq, cycles, dt)
     if n < 2:
         raise ValueError(f"{cycles} cycle(s) of {freq} Hz at dt={dt} s is fewer than 2 samples")
@@ -53,7 +67,11 @@ def sinusoid(
 
 def time_vector(n: int, dt: float) -> FloatArray:
     """``t_k = k dt`` for ``k = 0..n-1``."""
-    return np.arange(int(n)) * float(dt)
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)):
+        raise TypeError(f"n must be a whole number of samples, got {type(n).__name__}")
+    if not 0 <= n <= MAX_SAMPLES:
+        raise ValueError(f"n must be in 0..{MAX_SAMPLES} samples, got {n}")
+    return np.arange(int(n)) * as_scalar("dt", dt, positive=True)
 
 
 def estimate_period(x: object, *, min_corr: float = 0.95) -> int | None:
@@ -63,6 +81,9 @@ def estimate_period(x: object, *, min_corr: float = 0.95) -> int | None:
     has a local maximum above ``min_corr``.
     """
     s = as_signal("x", x)
+    min_corr = as_scalar("min_corr", min_corr)
+    if not 0 < min_corr <= 1:
+        raise ValueError(f"min_corr must be in (0, 1], got {min_corr}")
     s = s - s.mean()
     n = s.size
     if n < 4 or not np.any(s):

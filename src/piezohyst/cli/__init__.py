@@ -6,18 +6,31 @@ adds its parser; shared helpers in :mod:`._common`. The arrows run one way: this
 the commands, the commands import ``_common`` and the public API, never this module.
 
 Every command that prints figures prints them as JSON instead with ``--json`` (nothing else on
-stdout). Errors in what the user gave (a file, a value) end with exit code 2 and one line on
-stderr; ``--debug`` (anywhere on the line) shows the traceback instead.
+stdout). Exit codes:
+
+* 0: done;
+* 2: the user's error (a file, a flag, a value; an output that exists or cannot be written; a
+  loop the given gains make unstable): one line on stderr naming the file or the flag, in the
+  command line's spelling (``--fs``, not ``fs=``);
+* 1: a bug in piezohyst (an exception nobody raised on purpose): one line saying so and how to
+  report it;
+* 130/143: interrupted (Ctrl-C) / terminated (SIGTERM); temporary files are removed, outputs are
+  left whole or absent.
+
+``--debug`` (anywhere on the line) shows the traceback instead of the one line.
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
+import warnings
 from typing import Any, Callable, Sequence
 
 from . import benchmark, compensate, identify, models, reproduce, rig, track
-from ._common import UsageError
+from ._common import ArgumentParser, Terminated, UsageError, cli_spelling, is_deliberate, one_line
 
 #: The commands, in the order ``--help`` lists them.
 COMMANDS = (reproduce, identify, compensate, track, rig, models, benchmark)
@@ -37,7 +50,7 @@ Run 'piezohyst COMMAND --help' for each command's options and an example.
 def build_parser() -> argparse.ArgumentParser:
     from .._version import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="piezohyst",
         description="Hysteresis modelling, identification and compensation of piezoelectric "
         "actuators (Prandtl-Ishlinskii, asymmetric P-I, Preisach, Bouc-Wen; PSO and least squares; "
@@ -60,27 +73,102 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """The exceptions that are the user's (or the environment's) doing, not a bug."""
+    from .._fileio import OutputError
+    from ..control.tracking import UnstableLoopError
+    from ..data import DataError
+    from ..modelio import ModelFileError
+    from .._validation import FitError
+
+    return (UsageError, OutputError, DataError, ModelFileError, UnstableLoopError, FitError)
+
+
+def _flags(parser: argparse.ArgumentParser, command: str | None) -> dict[str, str]:
+    """keyword name -> option string, for the command's options (``fs`` -> ``--fs``)."""
+    out: dict[str, str] = {}
+    parsers = [parser]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+            parsers.append(action.choices[command])
+    for p in parsers:
+        for action in p._actions:
+            longs = [o for o in action.option_strings if o.startswith("--")]
+            if longs:
+                out.setdefault(action.dest, longs[0])
+    return out
+
+
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and not isinstance(exc, _user_errors()) and exc.filename:
+        return f"{exc.filename}: {exc.strerror or exc}"
+    if isinstance(exc, MemoryError):
+        return (f"not enough memory for this run ({one_line(exc) or 'MemoryError'}); ask for less (shorter "
+                "records, fewer parameters) or free memory")
+    return one_line(exc) or type(exc).__name__
+
+
+def _on_terminate(signum: int, frame: Any) -> None:
+    raise Terminated(signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args_in = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args_in
     args_in = [a for a in args_in if a != "--debug"]
-    parser = build_parser()
-    args = parser.parse_args(args_in)
-    args.debug = debug
-    if not getattr(args, "command", None):
-        parser.print_help()
-        return 0
+    # SIGTERM/SIGHUP end the run like Ctrl-C: every finally runs (temporary files are removed)
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in ("SIGTERM", "SIGHUP"):
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                handlers[sig] = signal.signal(sig, _on_terminate)
+    prog = "piezohyst"
+    parser: argparse.ArgumentParser | None = None
+    command = None
     try:
-        return int(args.func(args))
-    except KeyboardInterrupt:
-        print("piezohyst: interrupted", file=sys.stderr)
-        return 130
-    except (UsageError, ValueError, TypeError, OSError, KeyError) as exc:
+        parser = build_parser()
+        args = parser.parse_args(args_in)
+        args.debug = debug
+        if not getattr(args, "command", None):
+            parser.print_help()
+            return 0
+        command = args.command
+        prog = f"piezohyst {command}"
+        if debug:
+            return int(args.func(args))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            code = int(args.func(args))
+        seen = set()
+        for w in caught:  # after the results, once each, on one line each
+            text = one_line(w.message)
+            if text not in seen:
+                seen.add(text)
+                print(f"{prog}: warning: {cli_spelling(text, _flags(parser, command))}", file=sys.stderr)
+        return code
+    except KeyboardInterrupt as exc:
+        if debug and not isinstance(exc, Terminated):
+            raise
+        term = isinstance(exc, Terminated)
+        print(f"{prog}: {'terminated' if term else 'interrupted'}; no output was left half-written", file=sys.stderr)
+        return 143 if term else 130
+    except Exception as exc:
         if debug:
             raise
-        msg = str(exc) or type(exc).__name__
-        print(f"piezohyst {args.command}: error: {msg}", file=sys.stderr)
-        return 2
+        users = isinstance(exc, _user_errors()) or isinstance(exc, (OSError, MemoryError)) or (
+            isinstance(exc, (ValueError, TypeError)) and is_deliberate(exc))
+        if users:
+            msg = cli_spelling(_message(exc), _flags(parser, command) if parser is not None else {})
+            print(f"{prog}: error: {msg}", file=sys.stderr)
+            return 2
+        print(f"{prog}: internal error: {type(exc).__name__}: {_message(exc)[:300]} -- this is a bug in piezohyst, "
+              "not in what you gave; please report it with the output of the same command run with --debug "
+              "(the traceback)", file=sys.stderr)
+        return 1
+    finally:
+        for sig, old in handlers.items():
+            signal.signal(sig, old)
 
 
 __all__ = ["COMMANDS", "UsageError", "build_parser", "main"]

@@ -2,19 +2,42 @@
 
 Nothing here imports numpy, numba or scipy at module level: ``piezohyst --help`` parses before
 any of them is loaded.
+
+Option types refuse bad values at parse time, naming the flag (argparse prefixes its messages
+with ``argument --flag:``): numbers must be finite, counts positive, seeds non-negative.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import linecache
+import math
+import os
+import re
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
+
+#: The longest record (samples) a command builds; beyond it a run would take gigabytes per signal.
+#: (50 million samples: 400 MB per float64 signal, 83 minutes at 10 kHz.)
+MAX_SAMPLES = 50_000_000
 
 
 class UsageError(Exception):
     """A problem with what the user asked for: reported as one line, exit code 2."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM/SIGHUP, raised in the main thread so that every ``finally`` (temporary files) runs."""
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse, with its errors on one line (no usage block): ``piezohyst CMD: error: ...``."""
+
+    def error(self, message: str) -> Any:  # type: ignore[override]
+        msg = " ".join(message.split())
+        self.exit(2, f"{self.prog}: error: {msg} (see '{self.prog} --help')\n")
 
 
 def console(stderr: bool = False) -> Any:
@@ -28,10 +51,110 @@ def console(stderr: bool = False) -> Any:
 
 
 def print_json(obj: Any) -> None:
-    """Plain JSON on stdout (NaN and inf written as null, so every reader can parse it)."""
-    from .._fileio import to_jsonable
+    """Plain, strict JSON on stdout (NaN and inf written as null, so every reader can parse it)."""
+    from .._fileio import dumps_strict
 
-    sys.stdout.write(json.dumps(to_jsonable(obj), indent=2, sort_keys=False, allow_nan=False) + "\n")
+    sys.stdout.write(dumps_strict(obj, indent=2, sort_keys=False) + "\n")
+
+
+# ------------------------------------------------------------------------------------------------
+# errors: whose fault, and how to say it
+def is_deliberate(exc: BaseException) -> bool:
+    """True when ``exc`` was raised by a ``raise`` statement in piezohyst's own code (a check of
+    what the caller gave), not by numpy, the standard library or a slip in our code (a bad call,
+    a missing key): the difference between the user's error and a bug."""
+    tb = exc.__traceback__
+    if tb is None:
+        return False
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    filename = tb.tb_frame.f_code.co_filename
+    pkg = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if not os.path.abspath(filename).startswith(pkg + os.sep):
+        return False
+    line = linecache.getline(filename, tb.tb_lineno)
+    if not line:  # installed without sources (.pyc only): from our code, so give the user the benefit
+        return True
+    return line.lstrip().startswith("raise")
+
+
+def cli_spelling(message: str, flags: dict[str, str]) -> str:
+    """The API's Python spelling in a message (``fs=``, ``force=True``) in the command line's
+    (``--fs``, ``--force``); ``flags`` maps keyword names to option strings."""
+    def flag(name: str) -> str | None:
+        return flags.get(name) or flags.get(name.replace("-", "_"))
+
+    def true_kw(m: re.Match[str]) -> str:
+        f = flag(m.group(1))
+        return f if f else m.group(0)
+
+    def kw(m: re.Match[str]) -> str:
+        f = flag(m.group(1))
+        if not f:
+            return m.group(0)
+        return f + (" " + m.group(2) if m.group(2) else "")
+
+    out = re.sub(r"(?<![\w-])([A-Za-z_]\w*)=True\b", true_kw, message)
+    out = re.sub(r"(?<![\w-])([A-Za-z_]\w*)=(\S?)", kw, out)
+    out = out.replace(f"{flags.get('force', '--force')} / {flags.get('force', '--force')}", flags.get("force", "--force"))
+    return out
+
+
+def one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+# ------------------------------------------------------------------------------------------------
+# option types
+def _number(text: str, flag_kind: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {flag_kind}, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected {flag_kind}, got {text!r} (not finite)")
+    return v
+
+
+def finite_float(text: str) -> float:
+    """A finite number (no NaN, no inf)."""
+    return _number(text, "a finite number")
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    v = _number(text, "a positive number")
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return v
+
+
+def nonnegative_float(text: str) -> float:
+    """A finite number >= 0."""
+    v = _number(text, "a number >= 0")
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return v
+
+
+def _integer(text: str, least: int, what: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if v < least:
+        raise argparse.ArgumentTypeError(f"must be {what}, got {v}")
+    return v
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1."""
+    return _integer(text, 1, "an integer >= 1")
+
+
+def seed(text: str) -> int:
+    """A random seed: an integer >= 0 (what numpy's generators accept)."""
+    return _integer(text, 0, "an integer >= 0")
 
 
 def freqs(text: str) -> list[float]:
@@ -46,14 +169,17 @@ def freqs(text: str) -> list[float]:
 
 
 def sample_range(text: str | None) -> tuple[int | None, int | None]:
-    """``START:STOP`` sample indices (either may be empty)."""
+    """``START:STOP`` sample indices (either may be empty; both >= 0)."""
     if not text:
         return (None, None)
     try:
         a, b = text.split(":")
-        return (int(a) if a else None, int(b) if b else None)
+        out = (int(a) if a else None, int(b) if b else None)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected START:STOP sample indices, got {text!r}") from None
+    if any(v is not None and v < 0 for v in out):
+        raise argparse.ArgumentTypeError(f"sample indices count from 0, got {text!r}")
+    return out
 
 
 def column(text: str) -> Any:
@@ -61,57 +187,142 @@ def column(text: str) -> Any:
     return int(text) if text.lstrip("-").isdigit() else text
 
 
+def check_sinusoids(fs_list: list[float], cycles: float, dt: float, *, freq_flag: str = "--freq",
+                    cycles_flag: str = "--cycles", rate_from: str = "") -> None:
+    """Refuse, before allocating, sinusoids that the sample period cannot carry or memory cannot hold."""
+    rate = 1.0 / dt
+    count = f"{cycles_flag} {cycles:g}" if cycles_flag else f"{cycles:g} cycles"
+    for f in fs_list:
+        if not f * dt < 0.5:
+            raise UsageError(f"{freq_flag} {f:g} Hz is not below the Nyquist frequency {0.5 * rate:g} Hz "
+                             f"of the {rate:g} Hz sample rate{rate_from}")
+        n = cycles / (f * dt)
+        if not n <= MAX_SAMPLES:
+            raise UsageError(f"{freq_flag} {f:g} Hz with {count} needs {n:.3g} samples at "
+                             f"{rate:g} Hz{rate_from}; the limit is {MAX_SAMPLES:.3g} samples")
+        if round(n) < 2:
+            raise UsageError(f"{freq_flag} {f:g} Hz with {count} is fewer than 2 samples "
+                             f"at {rate:g} Hz{rate_from}")
+
+
+# ------------------------------------------------------------------------------------------------
+# data and rig options
 def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--u-col", type=column, default=None, help="input column (0-based index or header name)")
     p.add_argument("--y-col", type=column, default=None, help="output column (0-based index or header name)")
     p.add_argument("--t-col", type=column, default=None, help="time column (else --fs)")
-    p.add_argument("--fs", type=float, default=None, help="sample rate in Hz when the file has no time column")
+    p.add_argument("--fs", type=positive_float, default=None, help="sample rate in Hz when the file has no time column")
 
 
 def load_cli_dataset(path: str, args: argparse.Namespace) -> Any:
     import piezohyst as ph
 
+    for flag, v in (("--u-col", args.u_col), ("--y-col", args.y_col), ("--t-col", args.t_col)):
+        if isinstance(v, int) and v < 0:
+            raise UsageError(f"{flag} {v}: columns count from 0")
     return ph.load_dataset(path, u_col=args.u_col, y_col=args.y_col, t_col=args.t_col, fs=args.fs)
 
 
 def add_rig_options(p: argparse.ArgumentParser) -> None:
     """Options that choose the virtual rig (shared by every command that runs on it)."""
-    p.add_argument("--seed", type=int, default=0, help="noise seed of the virtual rig (default 0)")
-    p.add_argument("--rig-gamma", type=float, default=None, help="Bouc-Wen gamma of the rig (asymmetric loop; paper: 0)")
-    p.add_argument("--rig-creep-scale", type=float, default=None, help="multiply the rig's creep (default 1)")
-    p.add_argument("--rig-noise-scale", type=float, default=None, help="multiply the rig's sensor noise (default 1)")
+    p.add_argument("--seed", type=seed, default=0, help="noise seed of the virtual rig (default 0)")
+    p.add_argument("--rig-gamma", type=finite_float, default=None,
+                   help="Bouc-Wen gamma of the rig (asymmetric loop; paper: 0)")
+    p.add_argument("--rig-creep-scale", type=nonnegative_float, default=None, help="multiply the rig's creep (default 1)")
+    p.add_argument("--rig-noise-scale", type=nonnegative_float, default=None,
+                   help="multiply the rig's sensor noise (default 1)")
     p.add_argument("--rig-settings", default=None, metavar="JSON", help="rig settings file (RigSettings fields)")
+
+
+#: Largest rig-settings file read (settings are a few hundred bytes).
+MAX_SETTINGS_BYTES = 1024 * 1024
+
+
+def read_json_file(path: str, what: str, limit: int = MAX_SETTINGS_BYTES) -> Any:
+    """A small JSON file, every problem a :class:`UsageError` naming the file."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            raw = fh.read(limit + 1)
+    except FileNotFoundError:
+        raise UsageError(f"{p}: no such file") from None
+    except IsADirectoryError:
+        raise UsageError(f"{p}: is a folder, not a {what}") from None
+    except OSError as exc:
+        raise UsageError(f"{p}: cannot read it ({exc.strerror or exc})") from None
+    if len(raw) > limit:
+        raise UsageError(f"{p}: more than {limit} bytes; too large for a {what}")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise UsageError(f"{p}: not a text file (cannot decode it as UTF-8)") from None
+
+    def constant(name: str) -> Any:
+        raise UsageError(f"{p}: {name} is not a JSON number (write a finite number)")
+
+    def number(text: str) -> float:
+        v = float(text)
+        if not math.isfinite(v):
+            raise UsageError(f"{p}: {text} is out of range for a number")
+        return v
+
+    try:
+        return json.loads(text, parse_constant=constant, parse_float=number)
+    except json.JSONDecodeError as exc:
+        raise UsageError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except RecursionError:
+        raise UsageError(f"{p}: nested too deeply to be a {what}") from None
 
 
 def rig_from_args(args: argparse.Namespace) -> Any:
     from ..rig import RigSettings, VirtualRig
 
     settings = RigSettings()
+    src = "rig settings"
     if getattr(args, "rig_settings", None):
-        try:
-            doc = json.loads(Path(args.rig_settings).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise UsageError(f"{args.rig_settings}: no such file") from None
-        except json.JSONDecodeError as exc:
-            raise UsageError(f"{args.rig_settings}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-        except RecursionError:
-            raise UsageError(f"{args.rig_settings}: nested too deeply to be a rig settings file") from None
+        src = args.rig_settings
+        doc = read_json_file(args.rig_settings, "rig settings file")
         if not isinstance(doc, dict):
             raise UsageError(f"{args.rig_settings}: expected a JSON object of rig settings")
+        inner = doc.get("rig", doc)
+        if not isinstance(inner, dict):
+            raise UsageError(f"{args.rig_settings}: \"rig\" must be an object of rig settings")
         try:
-            settings = RigSettings.from_dict(doc.get("rig", doc))
+            settings = RigSettings.from_dict(inner)
         except (TypeError, ValueError) as exc:
-            raise UsageError(f"{args.rig_settings}: {exc}") from None
+            raise UsageError(f"{args.rig_settings}: {one_line(exc)}") from None
+        except RecursionError:
+            raise UsageError(f"{args.rig_settings}: nested too deeply to be a rig settings file") from None
     over = {}
     if getattr(args, "rig_gamma", None) is not None:
         over["gamma"] = args.rig_gamma
     if getattr(args, "rig_creep_scale", None) is not None:
         over["creep_scale"] = args.rig_creep_scale
     if getattr(args, "rig_noise_scale", None) is not None:
-        if not args.rig_noise_scale >= 0:
-            raise UsageError("--rig-noise-scale must be >= 0")
         over["noise_rms_um"] = settings.noise_rms_um * args.rig_noise_scale
     try:
         return VirtualRig(settings, seed=args.seed, **over)
     except (TypeError, ValueError) as exc:
-        raise UsageError(f"rig settings: {exc}") from None
+        flags = {"gamma": "--rig-gamma", "creep_scale": "--rig-creep-scale", "noise_rms_um": "--rig-noise-scale"}
+        named = [f for k, f in flags.items() if k in over and k in str(exc)]
+        raise UsageError(f"{named[0] if named else src}: {one_line(exc)}") from None
+
+
+def rig_rate_note(args: argparse.Namespace) -> str:
+    """Where the sample rate comes from, for messages (the rig-settings file, if one was given)."""
+    return f" (the rig's, from {args.rig_settings})" if getattr(args, "rig_settings", None) else " (the rig's)"
+
+
+def guarded(call: Callable[[], Any], prefix: str) -> Any:
+    """Run ``call``; a ValueError/TypeError raised by one of our checks, or a FitError, becomes a
+    UsageError starting with ``prefix`` (the file or flag it is about). Anything else passes through."""
+    from .._validation import FitError
+
+    try:
+        return call()
+    except FitError as exc:  # the data gave the fit nothing to converge on
+        raise UsageError(f"{prefix}: {one_line(exc)}") from exc
+    except (ValueError, TypeError) as exc:
+        if is_deliberate(exc) and prefix not in str(exc):
+            raise UsageError(f"{prefix}: {one_line(exc)}") from exc
+        raise

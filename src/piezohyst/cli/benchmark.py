@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import console, print_json
+from ._common import UsageError, console, guarded, print_json, seed
 
 
 def cmd_benchmark(args: argparse.Namespace) -> int:
@@ -12,8 +12,14 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     from ..experiments.boucwen_benchmark import PUBLISHED, QUOTED_FLOOR, run_benchmark
 
     path = args.data or str(data_dir() / "bouc-wen-benchmark" / "bouc-wen.mat")
+    from pathlib import Path
+
+    if not Path(path).is_file():
+        what = "no such file" if not Path(path).exists() else "not a file"
+        raise UsageError(f"{path}: {what}" + ("" if args.data else " (the project's copy of the benchmark data; "
+                                              "give --data)"))
     if args.json:
-        res = run_benchmark(path, seed=args.seed)
+        res = guarded(lambda: run_benchmark(path, seed=args.seed), path)
         print_json(res.to_dict())
         return 0
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -22,7 +28,8 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
                   console=console(stderr=True), transient=True) as bar:
         task = bar.add_task("loading", total=None)
-        res = run_benchmark(path, seed=args.seed, on_step=lambda s: bar.update(task, description=s))
+        res = guarded(lambda: run_benchmark(path, seed=args.seed, on_step=lambda s: bar.update(task, description=s)),
+                      path)
     d = res.to_dict()
     con = console()
     t = Table(title="Bouc-Wen benchmark: multisine test record, RMS error (m), lower is better")
@@ -60,6 +67,6 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
             "piezohyst benchmark bouc-wen --data data/bouc-wen-benchmark/bouc-wen.mat")
     p.add_argument("name", choices=("bouc-wen",), help="which benchmark (bouc-wen)")
     p.add_argument("--data", default=None, help="the benchmark's .mat file (default: the project's copy)")
-    p.add_argument("--seed", type=int, default=0, help="PSO seed (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="PSO seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the results as JSON only")
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ._common import UsageError, add_data_options, console, load_cli_dataset, print_json, sample_range
+from ._common import (UsageError, add_data_options, console, guarded, load_cli_dataset, positive_int, print_json,
+                      sample_range, seed)
 
 #: --model choices: "auto" and every kind name and alias (from the registry, at parse time)
 _MODEL_HELP = ("model kind: auto (every kind, chosen on held-out data), pi (the paper's P-I), bouc-wen (the "
@@ -24,11 +25,27 @@ def _delay(text: str) -> Any:
     return d
 
 
+def _check_magnitude(ds: Any, source: str) -> None:
+    """Refuse a record with nothing to identify (a constant column), or values whose squares
+    overflow double precision in the fit (they give RMSE inf)."""
+    import numpy as np
+
+    n = max(len(ds), 1)
+    for name, arr in (("u", ds.u), ("y", ds.y)):
+        if float(np.ptp(arr)) == 0.0:
+            flag = "--u-col" if name == "u" else "--y-col"
+            raise UsageError(f"{source}: {name} is constant ({arr[0]:g}): nothing to identify (check {flag})")
+        peak = float(np.max(np.abs(arr)))
+        if peak * np.sqrt(n) > 1e150:  # the sum of squared errors would pass 1e300, near the float64 limit
+            raise UsageError(f"{source}: {name} reaches {peak:.3g}; squares of values this large overflow double "
+                             f"precision in the fit (RMSE inf): rescale the data (u in V, y in um)")
+
+
 def cmd_identify(args: argparse.Namespace) -> int:
     import numpy as np
 
     import piezohyst as ph
-    from .._fileio import check_writable
+    from .._fileio import check_output_file
     from ..models.base import kind_class
 
     kind = args.model
@@ -36,24 +53,35 @@ def cmd_identify(args: argparse.Namespace) -> int:
         try:
             kind = kind_class(kind).kind
         except ValueError as exc:
-            raise UsageError(str(exc)) from None
+            raise UsageError(f"--model {args.model}: {exc}") from None
     if args.output:  # refuse before the fit, not after it
-        check_writable(args.output, args.force)
+        check_output_file(args.output, args.force)
     method = args.method or ("pso" if kind == "bouc-wen" else "lsq" if kind == "prandtl-ishlinskii" else "select")
     if method == "pso" and kind not in ("bouc-wen", "prandtl-ishlinskii"):
         raise UsageError(f"--method pso is for --model pi or bouc-wen (the paper's); {kind} is fitted by least squares")
     if method == "lsq" and kind not in ("prandtl-ishlinskii",):
         raise UsageError("--method lsq is for --model pi; the other kinds choose their structure on held-out data "
                          "(--method select, their default)")
+    if kind == "bouc-wen" and method == "pso" and args.delay == "auto":
+        raise UsageError("--delay auto is not available for --model bouc-wen with --method pso; give the delay in samples")
     ds = load_cli_dataset(args.data, args)
+    _check_magnitude(ds, args.data)
     start, stop = args.train
     n = len(ds)
     for name, (a, b) in (("--train", args.train), ("--validate", args.validate)):
         if (a is not None and not 0 <= a < n) or (b is not None and not 0 < b <= n) or (
-                a is not None and b is not None and b - a < 2):
+                (a or 0) >= (b if b is not None else n) - 1):
             raise UsageError(f"{name} {a if a is not None else ''}:{b if b is not None else ''} is outside the "
                              f"file's {n} samples (or holds fewer than 2)")
     train = ds.slice(start, stop) if (start is not None or stop is not None) else ds
+    if isinstance(args.delay, int) and args.delay > len(train) - 2:
+        raise UsageError(f"--delay {args.delay} leaves fewer than 2 of the {len(train)} training samples")
+    if args.n is not None:
+        # parameters the structure holds: n weights (P-I), n(n+1)/2 cells (a Preisach grid of n levels)
+        params = args.n * (args.n + 1) // 2 if kind in ("preisach", "auto") else args.n
+        if params >= len(train):
+            raise UsageError(f"--n {args.n} makes {params} parameters for the {len(train)} training samples: too many "
+                             f"to fit")
     # validation sets: (name, data simulated from its first sample, first sample scored)
     validation = []
     vstart, vstop = args.validate
@@ -61,26 +89,35 @@ def cmd_identify(args: argparse.Namespace) -> int:
         # simulate the record from its start, so the model carries its memory into the slice
         validation.append(("samples %s:%s" % (vstart or "", vstop or ""), ds.slice(None, vstop), vstart or 0))
     for vf in args.validate_data or []:
-        validation.append((vf, load_cli_dataset(vf, args), 0))
+        vd = load_cli_dataset(vf, args)
+        _check_magnitude(vd, vf)
+        validation.append((vf, vd, 0))
     show = not args.json
     if args.delay is None:
         args.delay = "auto" if method == "select" else 0
-    if kind == "bouc-wen" and method == "pso":
-        if args.delay == "auto":
-            raise UsageError("--delay auto is not available for --model bouc-wen with --method pso; give the delay in samples")
-        fit = ph.fit_bouc_wen(train.u, train.y, train.dt, seed=args.seed, delay=args.delay,
-                              max_iter=args.iterations, polish=not args.no_polish, progress=show)
-    elif kind == "prandtl-ishlinskii" and method in ("lsq", "pso"):
-        fit = ph.fit_pi(train.u, train.y, n=args.n or 20, method=method, seed=args.seed, delay=args.delay,
-                        max_iter=args.iterations, progress=show and method == "pso")
-    else:
+
+    def fit_it() -> Any:
+        if kind == "bouc-wen" and method == "pso":
+            return ph.fit_bouc_wen(train.u, train.y, train.dt, seed=args.seed, delay=args.delay,
+                                   max_iter=args.iterations, polish=not args.no_polish, progress=show)
+        if kind == "prandtl-ishlinskii" and method in ("lsq", "pso"):
+            return ph.fit_pi(train.u, train.y, n=args.n or 20, method=method, seed=args.seed, delay=args.delay,
+                             max_iter=args.iterations, progress=show and method == "pso")
         vsets = [(vd.u, vd.y, first) for _, vd, first in validation]
-        fit = _select(ph, train, kind, args, vsets, show)
+        return _select(ph, train, kind, args, vsets, show)
+
+    # a check of the API refusing these data names the file (the flags were checked above)
+    fit = guarded(fit_it, args.data)
+    if not np.isfinite(fit.rmse):
+        raise UsageError(f"{args.data}: the fit's RMSE is {fit.rmse} (not finite): the model cannot follow these "
+                         f"data; check their units and scale")
     vrows = []
     for name, vd, first in validation:
         pred = fit.predict(vd.u, vd.dt)
         d = fit.delay
         resid = (vd.y[d:] - pred[: pred.size - d] if d else vd.y - pred)[max(first - d, 0):]
+        if resid.size < 1:
+            raise UsageError(f"{name}: no sample left to validate on after the model's delay of {d} samples")
         span = float(np.ptp(vd.y[first:]))
         # the validation record's sensor zero may differ: report with and without refitting it
         vrows.append({"data": name, "n_samples": int(resid.size), "rmse": float(np.sqrt(np.mean(resid**2))),
@@ -183,10 +220,10 @@ def register(sub: Any, add: Any) -> None:
                    help="select: choose the structure on held-out data (default for every kind but the paper's); "
                    "lsq: pi by least squares with fixed operators (pi default); pso: the paper's particle swarm "
                    "(bouc-wen default, or pi)")
-    p.add_argument("--n", type=int, default=None,
+    p.add_argument("--n", type=positive_int, default=None,
                    help="play operators (pi) or grid levels (preisach); default: chosen on held-out data (20 for --method lsq/pso)")
-    p.add_argument("--seed", type=int, default=0, help="PSO seed (default 0)")
-    p.add_argument("--iterations", type=int, default=200, help="PSO iterations (default 200)")
+    p.add_argument("--seed", type=seed, default=0, help="PSO seed (default 0)")
+    p.add_argument("--iterations", type=positive_int, default=200, help="PSO iterations (default 200)")
     p.add_argument("--no-polish", action="store_true", help="bouc-wen: PSO only, no local refinement")
     p.add_argument("--delay", type=_delay, default=None,
                    help="samples by which the output lags the input, or 'auto' (default: searched on held-out data "

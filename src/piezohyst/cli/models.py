@@ -5,21 +5,23 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ._common import console, freqs, print_json
+from ._common import check_sinusoids, console, freqs, guarded, print_json
 
 
 def cmd_models(args: argparse.Namespace) -> int:
+    dt = 1e-4
+    check_sinusoids(args.freq, 3, dt, cycles_flag="")  # before loading or allocating anything
+
     import piezohyst as ph
     from piezohyst import paper_values as pv
 
-    dt = 1e-4
     rows = []
     for freq in args.freq:
         u = ph.sinusoid(freq, 3, 0.0, 100.0, dt)
         bw = pv.bouc_wen_model()
-        figs_bw = ph.loop_figures(u, bw.simulate(u, dt) * 1e6)
+        figs_bw = guarded(lambda: ph.loop_figures(u, bw.simulate(u, dt) * 1e6), f"--freq {freq:g} Hz")
         pi = pv.pi_model()
-        figs_pi = ph.loop_figures(u, pi.simulate(u))
+        figs_pi = guarded(lambda: ph.loop_figures(u, pi.simulate(u)), f"--freq {freq:g} Hz")
         rows.append({"model": "Bouc-Wen, paper III-B", "freq_hz": freq, "span": figs_bw.span,
                      "unit": "um", "width": figs_bw.width, "width_percent": figs_bw.width_percent})
         rows.append({"model": "P-I, paper III-C", "freq_hz": freq, "span": figs_pi.span,

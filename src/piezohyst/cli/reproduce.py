@@ -5,19 +5,38 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import console, print_json
-from ._common import add_rig_options, rig_from_args
+from ._common import UsageError, add_rig_options, console, print_json, rig_from_args, rig_rate_note
+
+
+def _check_rig_for_experiment(rig, args) -> None:  # type: ignore[no-untyped-def]
+    """Refuse, before the run, a rig whose sample period cannot carry the experiment's records."""
+    from ..commission import commissioning_excitation
+    from ._common import MAX_SAMPLES, check_sinusoids
+
+    check_sinusoids([1.0, 3.0, 5.0], 4, rig.dt, freq_flag="the experiment's", cycles_flag="",
+                    rate_from=rig_rate_note(args))
+    # the commissioning record: its length in seconds does not depend on the sample period
+    probe = 1e-2
+    seconds = commissioning_excitation(probe).size * probe
+    n = seconds / rig.dt
+    if n > MAX_SAMPLES:
+        raise UsageError(f"{args.rig_settings or 'the rig'}: dt = {rig.dt:g} s makes the {seconds:g} s commissioning "
+                         f"record {n:.3g} samples; the limit is {MAX_SAMPLES:.3g}")
+    try:
+        commissioning_excitation(rig.dt)
+    except ValueError as exc:
+        raise UsageError(f"{args.rig_settings or 'the rig'}: dt = {rig.dt:g} s is too coarse for the experiment "
+                         f"({exc})") from None
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from .._fileio import atomic_write_text, check_writable
-    from ..experiments.paper import FIGURES, report_markdown, run_paper_experiment, write_figures
+    from ..experiments.paper import results_folder, run_paper_experiment, write_results
 
     out = Path(args.out) if args.out else None
     if out is not None:  # refuse before an expensive run, not after
-        for name in [*FIGURES.values(), "report.md", "results.json"]:
-            check_writable(out / name, args.force)
+        results_folder(out, force=args.force).check()
     rig = rig_from_args(args)
+    _check_rig_for_experiment(rig, args)
     if args.json:
         exp = run_paper_experiment(rig, seed=args.seed)
     else:
@@ -34,27 +53,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             exp = run_paper_experiment(rig, seed=args.seed, on_step=on_step)
     written = []
     if out is not None:
-        import json
-
-        paths = write_figures(exp, out, force=args.force)
-        written += [str(p) for p in paths.values()]
-        written.append(str(atomic_write_text(out / "report.md", report_markdown(exp), force=args.force)))
-        from .._fileio import producer
-
-        doc = {"producer": producer(), **exp.to_dict()}
-        written.append(str(atomic_write_text(out / "results.json", json.dumps(_clean(doc), indent=2) + "\n",
-                                             force=args.force)))
+        written = [str(p) for p in write_results(exp, out, force=args.force)]
     if args.json:
-        print_json(_clean({**exp.to_dict(), "written": written}))
+        print_json({**exp.to_dict(), "written": written})
         return 0
     _print_tables(exp, written)
     return 0
-
-
-def _clean(obj):  # type: ignore[no-untyped-def]
-    from .._fileio import to_jsonable
-
-    return to_jsonable(obj)
 
 
 def _print_tables(exp, written) -> None:  # type: ignore[no-untyped-def]
@@ -119,8 +123,9 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
             "feedforward controllers, tune PID, track 1/3/5 Hz, print Tables I and II beside the paper's, "
             "write the figures and a report.",
             "piezohyst reproduce --out results/ --seed 0")
-    p.add_argument("--out", default=None, help="folder for report.md, results.json and the figures")
-    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.add_argument("--out", default=None, help="folder for report.md, results.json and the figures (a new or empty "
+                   "folder; written as one set, with a manifest.json)")
+    p.add_argument("--force", action="store_true", help="replace the files of a previous 'reproduce --out' in that folder")
     p.add_argument("--json", action="store_true", help="print the results as JSON only")
     add_rig_options(p)
 

@@ -5,38 +5,54 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_rig_options, console, freqs, print_json, rig_from_args
+from ._common import (UsageError, add_rig_options, check_sinusoids, console, finite_float, freqs, guarded,
+                      positive_float, print_json, rig_from_args, rig_rate_note)
+
+#: The files ``rig --out`` writes (one set, with its manifest.json)
+RIG_FILES = ("fig2_loops.png", "rig_loops.csv")
 
 
 def cmd_rig(args: argparse.Namespace) -> int:
+    from .._fileio import OutputFolder
+
+    if args.cycles < 1:
+        raise UsageError(f"--cycles must be at least 1 (a loop needs a whole cycle), got {args.cycles:g}")
+    if not args.u_low < args.u_high:
+        raise UsageError(f"--u-low ({args.u_low:g} V) must be below --u-high ({args.u_high:g} V)")
+    out = Path(args.out) if args.out else None
+    folder = OutputFolder(out, RIG_FILES, force=args.force) if out is not None else None
+    if folder is not None:  # refuse before the run, not after it
+        folder.check()
+    rig = rig_from_args(args)
+    lo, hi = rig.u_range
+    for flag, v in (("--u-low", args.u_low), ("--u-high", args.u_high)):
+        if not lo <= v <= hi:
+            raise UsageError(f"{flag} {v:g} V is outside the rig's amplifier range {lo:g}..{hi:g} V "
+                             f"(the amplifier would clip it)")
+    check_sinusoids(args.freq, args.cycles, rig.dt, rate_from=rig_rate_note(args))
+
     import numpy as np
 
     import piezohyst as ph
 
     from .. import plots
-    from .._fileio import check_writable
 
-    rig = rig_from_args(args)
-    out = Path(args.out) if args.out else None
-    fig_path = csv_path = None
-    if out is not None:
-        fig_path = check_writable(out / "fig2_loops.png", args.force)
-        csv_path = check_writable(out / "rig_loops.csv", args.force)
     rows, runs, columns = [], [], []
     for f in args.freq:
         u = ph.sinusoid(f, args.cycles, args.u_low, args.u_high, rig.dt)
         ds = rig.excite(u)
         period = int(round(1 / (f * rig.dt)))
-        lf = ph.loop_figures(ds.u, ds.y, period=period)
+        lf = guarded(lambda: ph.loop_figures(ds.u, ds.y, period=period), f"--freq {f:g} Hz")
         rows.append({"freq_hz": f, "span_um": lf.span, "width_um": lf.width, "width_percent": lf.width_percent,
                      "clipped_samples": ds.meta["clipped_samples"]})
         runs.append((f"{f:g} Hz", ds.u[-period:], ds.y[-period:]))
         columns.append((f, ds))
-    if out is not None:
+    fig_path = csv_path = None
+    if folder is not None:
+        from .._fileio import atomic_write, producer
+
         plots.use_headless_backend()
         lines = plots.plot_loops(runs, title=f"Virtual rig, open loop, {args.u_low:g}-{args.u_high:g} V sinusoids (cf. paper Fig. 2)")
-        plots.save(lines[0].axes, fig_path, force=args.force)
-        from .._fileio import atomic_write, producer
 
         def write(tmp):  # type: ignore[no-untyped-def]
             n = max(len(d) for _, d in columns)
@@ -51,7 +67,10 @@ def cmd_rig(args: argparse.Namespace) -> int:
                         cols.append(c)
                 np.savetxt(fh, np.column_stack(cols), delimiter=",", fmt="%.9g")
 
-        atomic_write(csv_path, write, force=args.force)
+        with folder as tmp_dir:  # both files appear together, or neither
+            plots.save(lines[0].axes, tmp_dir / RIG_FILES[0], force=True)
+            atomic_write(tmp_dir / RIG_FILES[1], write, force=True)
+        fig_path, csv_path = out / RIG_FILES[0], out / RIG_FILES[1]
     result = {"rig": rig.settings.to_dict(), "seed": args.seed, "loops": rows,
               "written": [str(fig_path), str(csv_path)] if out else []}
     if args.json:
@@ -76,11 +95,12 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p = add("rig", cmd_rig, "Drive the virtual rig open loop with sinusoids and show its loops (the paper's Fig. 2).",
             "piezohyst rig --freq 1,3,5 --out loops/")
     p.add_argument("--freq", type=freqs, default=[1.0, 3.0, 5.0], help="frequencies in Hz (default 1,3,5)")
-    p.add_argument("--cycles", type=float, default=3, help="cycles per frequency (default 3)")
-    p.add_argument("--u-low", type=float, default=0.0, help="lowest voltage (default 0)")
-    p.add_argument("--u-high", type=float, default=100.0, help="highest voltage (default 100)")
-    p.add_argument("--out", default=None, help="folder for fig2_loops.png and rig_loops.csv")
-    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.add_argument("--cycles", type=positive_float, default=3, help="cycles per frequency (default 3)")
+    p.add_argument("--u-low", type=finite_float, default=0.0, help="lowest voltage (default 0)")
+    p.add_argument("--u-high", type=finite_float, default=100.0, help="highest voltage (default 100)")
+    p.add_argument("--out", default=None,
+                   help="folder for fig2_loops.png and rig_loops.csv (a new or empty folder; written as one set)")
+    p.add_argument("--force", action="store_true", help="replace the files of a previous 'rig --out' in that folder")
     p.add_argument("--json", action="store_true", help="print the figures as JSON only")
     add_rig_options(p)
 

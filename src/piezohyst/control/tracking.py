@@ -23,12 +23,36 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .._validation import FloatArray, as_signal
+from .._validation import FloatArray, as_scalar, as_signal
 from ..signals import cycles_after_first, estimate_period
 
 
 class UnstableLoopError(RuntimeError):
-    """The loop diverged: non-finite output, or output far outside any plausible range."""
+    """The loop diverged: non-finite output, or output far outside any plausible range.
+
+    ``reason`` is the short cause (without the controller settings), ``sample`` where it was seen.
+    """
+
+    def __init__(self, message: str, *, reason: str | None = None, sample: int | None = None):
+        super().__init__(message)
+        self.reason = reason or message
+        self.sample = sample
+
+
+def _check_period(period: Any, n: int) -> int | None:
+    """``period`` (samples) as given to the metrics: None, or a whole number of samples with at
+    least one whole cycle after the first (else the start-up would be scored)."""
+    if period is None:
+        return None
+    if isinstance(period, (bool, np.bool_)) or not isinstance(period, (int, np.integer)):
+        raise TypeError(f"period must be a whole number of samples or None, got {type(period).__name__}")
+    p = int(period)
+    if p < 1:
+        raise ValueError(f"period must be >= 1 sample, got {p}")
+    if n < 2 * p:
+        raise ValueError(f"period={p} samples leaves no whole cycle after the first in {n} samples "
+                         f"(the first cycle is the start-up and is not scored); give a longer reference")
+    return p
 
 
 class _Stepper(Protocol):
@@ -58,6 +82,7 @@ def tracking_metrics(reference: Any, output: Any, *, period: int | None = None) 
     y = as_signal("output", output)
     if r.size != y.size:
         raise ValueError(f"reference and output must have the same length, got {r.size} and {y.size}")
+    period = _check_period(period, r.size)
     sl = cycles_after_first(r.size, period if period is not None else estimate_period(r))
     e = y[sl] - r[sl]
     span = float(np.ptp(r))
@@ -167,11 +192,11 @@ class LoopWatch:
                 self.n_lo += 1
             if k % self.CHATTER == self.CHATTER - 1:
                 if self.n_hi >= 10 and self.n_lo >= 10:
-                    raise UnstableLoopError(
-                        f"the loop oscillates between the amplifier's limits ({self.n_lo} commands below "
-                        f"{self.lo_u:g} V and {self.n_hi} above {self.hi_u:g} V within samples "
-                        f"{k - self.CHATTER + 1}..{k}) with {self.describe()}; lower the feedback gains"
-                    )
+                    reason = (f"the loop oscillates between the amplifier's limits ({self.n_lo} commands below "
+                              f"{self.lo_u:g} V and {self.n_hi} above {self.hi_u:g} V within samples "
+                              f"{k - self.CHATTER + 1}..{k})")
+                    raise UnstableLoopError(f"{reason} with {self.describe()}; lower the feedback gains",
+                                            reason=reason, sample=k)
                 self.n_lo = self.n_hi = 0
         return sat
 
@@ -179,20 +204,19 @@ class LoopWatch:
         """Check output k (``y[:k+1]`` holds the outputs so far, ``y[k] == yk``)."""
         rk = self.r[k]
         if not math.isfinite(yk) or abs(yk - rk) > self.limit:
-            raise UnstableLoopError(
-                f"the loop went unstable at sample {k} (t = {k * self.dt:.4g} s): output {yk!r} um against "
-                f"reference {rk:.4g} um, with {self.describe()}; lower the feedback gains"
-            )
+            reason = (f"the loop went unstable at sample {k} (t = {k * self.dt:.4g} s): output {yk!r} um against "
+                      f"reference {rk:.4g} um")
+            raise UnstableLoopError(f"{reason}, with {self.describe()}; lower the feedback gains",
+                                    reason=reason, sample=k)
         w = self.WINDOW
         if self.watch_window and k >= self.settle and k % w == w - 1:
             ew = y[k - w + 1: k + 1] - self.r[k - w + 1: k + 1]
             rms = float(np.sqrt(np.mean(ew * ew)))
             if rms > self.span:
-                raise UnstableLoopError(
-                    f"the loop stopped following: the error's RMS over samples {k - w + 1}..{k} "
-                    f"is {rms:.4g} um, more than the reference's whole span ({self.span:.4g} um), with "
-                    f"{self.describe()}; lower the feedback gains"
-                )
+                reason = (f"the loop stopped following: the error's RMS over samples {k - w + 1}..{k} "
+                          f"is {rms:.4g} um, more than the reference's whole span ({self.span:.4g} um)")
+                raise UnstableLoopError(f"{reason}, with {self.describe()}; lower the feedback gains",
+                                        reason=reason, sample=k)
 
 
 def _describe(feedforward: Any, feedback: Any, feedback_at: str) -> str:
@@ -222,7 +246,8 @@ def track(
     feedback_at : {"reference", "command"}
         Where the PID's output enters (see :mod:`piezohyst.control.pid`).
     period : int, optional
-        The reference's period in samples (estimated when omitted).
+        The reference's period in samples (estimated when omitted). Given, it must leave at
+        least one whole cycle after the first (the start-up, which is not scored).
     divergence_limit : float, optional
         Stop with :class:`UnstableLoopError` when |y - r| exceeds this (µm); default ten times
         the reference's span plus 10 µm. With feedback on, the run also stops when, after the
@@ -241,6 +266,9 @@ def track(
     TrackingResult
     """
     r = as_signal("reference", reference, min_length=2)
+    period = _check_period(period, r.size)
+    if divergence_limit is not None:
+        divergence_limit = as_scalar("divergence_limit", divergence_limit, positive=True)
     dt = getattr(plant, "dt", None)
     if not isinstance(dt, (int, float)) or not dt > 0:
         raise TypeError("plant must follow the Plant protocol: a positive float 'dt', reset() and step(u)")

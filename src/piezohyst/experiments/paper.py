@@ -393,3 +393,36 @@ def report_markdown(exp: PaperExperiment) -> str:
     for key, fname in FIGURES.items():
         L += [f"![{captions[key]}]({fname})", ""]
     return "\n".join(L) + "\n"
+
+
+#: The files of one run's output folder (written as one set with a ``manifest.json``).
+RESULT_FILES = (*FIGURES.values(), "report.md", "results.json")
+
+
+def results_folder(out: Any, *, force: bool = False) -> Any:
+    """The :class:`~piezohyst._fileio.OutputFolder` a run's results go to; ``.check()`` it before
+    the run to refuse a bad or occupied folder before the work, not after."""
+    from .._fileio import OutputFolder
+
+    return OutputFolder(out, RESULT_FILES, force=force)
+
+
+def write_results(exp: PaperExperiment, out: Any, *, force: bool = False) -> list[Any]:
+    """Write the figures, ``report.md`` and ``results.json`` of ``exp`` into the folder ``out``,
+    as one set: they appear together or not at all (an interrupted run leaves the previous set
+    or nothing), and a previous set is replaced only with ``force``.
+
+    Returns the paths written (in the final folder).
+    """
+    from pathlib import Path
+
+    from .._fileio import atomic_write_text, dumps_strict, producer
+
+    folder = results_folder(out, force=force)
+    with folder as tmp:
+        paths = write_figures(exp, tmp, force=True)
+        atomic_write_text(tmp / "report.md", report_markdown(exp), force=True)
+        doc = {"producer": producer(), **exp.to_dict()}
+        atomic_write_text(tmp / "results.json", dumps_strict(doc, indent=2) + "\n", force=True)
+    final = Path(out)
+    return [final / Path(p).name for p in paths.values()] + [final / "report.md", final / "results.json"]

@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .._validation import FloatArray, as_scalar, as_signal
+from .._validation import FitError, FloatArray, as_scalar, as_signal
 from ..models.bouc_wen import BoucWen, bw_swarm_rmse
 from ..pso import pso_minimize
 from .result import FitResult, paired_signals as _pair, unpack_data
@@ -136,7 +136,7 @@ def fit_bouc_wen(
                        max_iter=max_iter, seed=seed, stall_iter=stall_iter, progress=progress,
                        callback=callback, description="PSO, Bouc-Wen (7 parameters)")
     if not res.success:
-        raise RuntimeError("Bouc-Wen identification failed: every particle's simulation diverged; "
+        raise FitError("Bouc-Wen identification failed: every particle's simulation diverged; "
                            "check the data's units (u in V, y in um) and the bounds")
     best = res.x
     info: dict[str, Any] = {"pso_rmse": float(res.fun), "pso_nit": int(res.nit),
