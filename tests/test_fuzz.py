@@ -218,7 +218,7 @@ def stubbed():
     import piezohyst.experiments.paper as paper
     import piezohyst.rig as rig
 
-    commission = importlib.import_module("piezohyst.commission")  # (ph.commission is the function)
+    commission = importlib.import_module("piezohyst.commissioning")
     mp = pytest.MonkeyPatch()
     for obj, name in ((ph, "fit_pi"), (ph, "fit_bouc_wen"), (ph, "fit_model"), (ph, "sinusoid"),
                       (tracking, "track"), (commission, "commission"), (paper, "run_paper_experiment"),

@@ -426,8 +426,8 @@ def test_import_and_kernels_work_where_nothing_can_be_written(read_only_install)
 
 # ------------------------------------------------------------------------------------------------
 def test_importing_the_commission_module_keeps_the_commission_function():
-    """``piezohyst.commission`` (the module) must not shadow ``ph.commission`` (the function)."""
-    code = ("import piezohyst as ph; from piezohyst.commission import commissioning_excitation; "
+    """Importing the module that defines ``commission`` keeps ``ph.commission`` the function."""
+    code = ("import piezohyst as ph; from piezohyst.commissioning import commissioning_excitation; "
             "print(callable(ph.commission) and ph.commission.__name__ == 'commission')")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                        env={**os.environ, "PYTHONPATH": str(ROOT / "src")})

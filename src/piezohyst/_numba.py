@@ -106,6 +106,13 @@ def njit(func: F) -> F:
     return _compile(func, nogil=True)
 
 
+def njit_fast(fastmath: Any) -> Callable[[F], F]:
+    """As :func:`njit`, with numba's ``fastmath`` flags (e.g. ``{"reassoc"}``: sums vectorised)."""
+    def deco(func: F) -> F:
+        return _compile(func, nogil=True, fastmath=fastmath)
+    return deco
+
+
 def njit_parallel(func: F) -> F:
     """As :func:`njit`, for kernels that spread independent work over cores with ``prange``."""
     return _compile(func, nogil=True, parallel=True)

@@ -10,7 +10,7 @@ from ._common import UsageError, add_rig_options, console, print_json, rig_from_
 
 def _check_rig_for_experiment(rig, args) -> None:  # type: ignore[no-untyped-def]
     """Refuse, before the run, a rig whose sample period cannot carry the experiment's records."""
-    from ..commission import commissioning_excitation
+    from ..commissioning import commissioning_excitation
     from ._common import MAX_SAMPLES, check_sinusoids
 
     check_sinusoids([1.0, 3.0, 5.0], 4, rig.dt, freq_flag="the experiment's", cycles_flag="",

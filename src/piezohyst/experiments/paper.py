@@ -337,7 +337,7 @@ def report_markdown(exp: PaperExperiment) -> str:
                   "(each run's count is in results.json).", ""]
     if exp.ablation:
         L += ["## Table III - piezohyst (beyond the paper)", "",
-              "Best feedforward alone: the compensator of the model `piezohyst.commission` chose on held-out data "
+              "Best feedforward alone: the compensator of the model `piezohyst.commission()` chose on held-out data "
               "(every linear kind and structure, fitted by least squares on a 9.5 s commissioning run). With feedback: "
               "plus integral feedback tuned on the plant and iterative learning. Targets: piezohyst's own "
               "(e_max <= 2 % and RMSE <= 0.6 % of span with feedforward alone; 1 % and 0.3 % with feedback).", "",

@@ -29,7 +29,7 @@ from typing import Any
 import numba
 import numpy as np
 
-from .._numba import _CACHE, njit
+from .._numba import njit, njit_fast
 from .._validation import FloatArray, as_signal
 
 
@@ -78,7 +78,7 @@ def _pi_dense_into(
 _FOUR_AT_ONCE = 32  # up to this many operators, four samples at once (measured: see the comment)
 
 
-@numba.njit(cache=_CACHE, nogil=True, fastmath={"reassoc", "contract", "nsz"})
+@njit_fast({"reassoc", "contract", "nsz"})
 def _pi_dense_fast_into(
     u: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float,
     y: FloatArray, k0: int, k1: int,
@@ -477,7 +477,7 @@ def play_outputs(u: FloatArray, r: FloatArray, z: FloatArray) -> FloatArray:  # 
     return out
 
 
-@numba.njit(cache=_CACHE, nogil=True, fastmath={"reassoc"})
+@njit_fast({"reassoc"})
 def _all_finite(x: FloatArray) -> bool:  # pragma: no cover - compiled
     # 0 * x is NaN exactly where x is NaN or infinite; the sum may be vectorised (reassoc only:
     # the compiler must not assume the absence of NaN or inf, which is what is being tested)
@@ -532,7 +532,7 @@ _GRAM_COMPILED_MAX = 64
 _GRAM_BLOCK = 64
 
 
-@numba.njit(cache=_CACHE, nogil=True, fastmath={"reassoc", "contract", "nsz"})
+@njit_fast({"reassoc", "contract", "nsz"})
 def _gram_into(
     u: FloatArray, r: FloatArray, z: FloatArray, y: FloatArray, delays: Any, gram: FloatArray,
     zty: FloatArray, colsum: FloatArray,
