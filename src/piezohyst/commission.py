@@ -90,7 +90,7 @@ def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100
     and the whole command changes by at most half of ``max_step_fraction * (high - low)`` per
     sample: a sinusoid that would be faster at this ``dt`` is slowed to that limit. ``start`` is the
     command the plant holds before (default: 0 V, or the nearest end of the range); the table
-    begins with a ramp from it.
+    begins with a ramp from it and ends with a ramp back to it.
     """
     limits = CommandLimits.for_range(u_range, max_step_fraction=max_step_fraction, rest=start)
     lo, hi = limits.low, limits.high
@@ -112,7 +112,30 @@ def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100
         out.append(limits.ramp(last, float(seg[0]), dt))
         out.append(seg)
         last = float(seg[-1])
+    out.append(limits.ramp(last, limits.rest, dt))  # and back to rest
     return np.concatenate(out)
+
+
+def reference_period(r: FloatArray) -> int | None:
+    """The reference's period in samples: :func:`~piezohyst.signals.estimate_period`'s estimate,
+    refined to the lag (within 3 % of it) where the reference best matches itself shifted.
+
+    The estimate is the first local maximum of the autocorrelation above 0.95, which can sit a
+    little before the true period (measured: 9916 samples for a 1 Hz sinusoid at 10 kHz); learning
+    indexes its correction by the period, so the lag must be the period itself.
+    """
+    p0 = estimate_period(r)
+    if p0 is None:
+        return None
+    x = r - float(np.mean(r))
+    lo, hi = max(2, int(math.floor(0.97 * p0))), min(int(math.ceil(1.03 * p0)), x.size // 2)
+    best, best_err = p0, math.inf
+    for lag in range(lo, hi + 1):
+        d = x[lag:] - x[:-lag]
+        err = float(np.mean(d * d))
+        if err < best_err:
+            best, best_err = lag, err
+    return best
 
 
 def _lowpass_periodic(x: FloatArray, dt: float, cutoff_hz: float) -> FloatArray:
@@ -219,7 +242,7 @@ class CommissionedController:
         limits = self._limits()
         guard = GuardedPlant(plant, limits)
         n = r.size
-        per = period if period is not None else estimate_period(r)
+        per = period if period is not None else reference_period(r)
         learn = learning and per is not None and n >= 2 * per
         ff = self.feedforward()
         pid = self.tuning.pid(dt) if (feedback and self.tuning is not None) else None
@@ -244,36 +267,46 @@ class CommissionedController:
         lead_samples = guard.sent
         y = np.empty(n)
         u = np.empty(n)
+        # where the range clipped the command, learning cannot act: no correction builds up there
+        clipped_at = np.zeros(n + d, dtype=bool)
         sat = 0
         cutoff = self._cutoff(per, dt)
-        for k in range(n):
-            fb = pid.step(r[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
-            j = min(k + d, n - 1)
-            target = r[j] + (corr[j % per] if corr is not None else 0.0)  # type: ignore[index, operator]
-            uk = ff.step(target) + fb
-            watch.command(k, uk)
-            yk = guard.step(uk)
-            sat = guard.last_saturation
-            u[k] = guard.last
-            y[k] = yk
-            watch.output(k, yk, y)
-            y_prev = yk
-            if learn and (k + 1) % per == 0:
-                c0 = k + 1 - per
-                e = r[c0:k + 1] - y[c0:k + 1]
-                rms = float(np.sqrt(np.mean(e**2)))
-                cycle_rms.append(rms)
-                if learning_on:
-                    if rms < best_rms:
-                        best_rms, best_corr = rms, corr.copy()  # type: ignore[union-attr]
-                        # the error of cycle m shows the correction applied in it; align by phase
-                        corr = _lowpass_periodic(corr + self.learning_gain * np.roll(e, -(c0 % per)), dt, cutoff)  # type: ignore[operator]
-                        if rms > 0.95 * (cycle_rms[-2] if len(cycle_rms) > 1 else np.inf):
+        try:
+            for k in range(n):
+                fb = pid.step(r[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
+                j = min(k + d, n - 1)
+                target = r[j] + (corr[j % per] if corr is not None else 0.0)  # type: ignore[index, operator]
+                uk = ff.step(target) + fb
+                watch.command(k, uk)
+                yk = guard.step(uk)
+                sat = guard.last_saturation
+                clipped_at[k + d] = sat != 0
+                u[k] = guard.last
+                y[k] = yk
+                watch.output(k, yk, y)
+                y_prev = yk
+                if learn and (k + 1) % per == 0:
+                    c0 = k + 1 - per
+                    e = r[c0:k + 1] - y[c0:k + 1]
+                    rms = float(np.sqrt(np.mean(e**2)))
+                    e = np.where(clipped_at[c0:k + 1], 0.0, e)
+                    cycle_rms.append(rms)
+                    # the first cycle starts from the lead-in, on the virgin branch where the model
+                    # began: its error is a transient (the figures of merit leave it out too), so
+                    # learning starts from the second cycle
+                    if learning_on and len(cycle_rms) > 1:
+                        if rms < best_rms:
+                            best_rms, best_corr = rms, corr.copy()  # type: ignore[union-attr]
+                            # the error of cycle m shows the correction applied in it; align by phase
+                            corr = _lowpass_periodic(corr + self.learning_gain * np.roll(e, -(c0 % per)), dt, cutoff)  # type: ignore[operator]
+                            if len(cycle_rms) > 2 and rms > 0.95 * cycle_rms[-2]:
+                                learning_on = False
+                                corr = best_corr
+                        else:  # the error stopped falling: keep the best correction
                             learning_on = False
                             corr = best_corr
-                    else:  # the error stopped falling: keep the best correction
-                        learning_on = False
-                        corr = best_corr
+        finally:
+            guard.ramp_to(limits.rest)  # leave the stage at rest (a later reset() is then no jump)
         return TrackingResult(t=np.arange(n) * dt, reference=r, output=y, command=u, period=per,
                               clipped=guard.clipped, label=label,
                               info={"mode": "step", "feedback": pid is not None, "learning": learn,
@@ -284,18 +317,23 @@ class CommissionedController:
                         max_plays: int) -> TrackingResult:
         if max_plays < 1:
             raise ValueError(f"max_plays must be >= 1, got {max_plays}")
+        from .signals import cycles_after_first
+
         plant = self.plant
         dt = plant.dt
         limits = self._limits()
         guard = GuardedPlant(plant, limits, last=self.info.get("held_command", limits.rest))
         n = r.size
-        per = period if period is not None else estimate_period(r)
+        per = period if period is not None else reference_period(r)
+        folded = per is not None and n >= 2 * per
+        window = cycles_after_first(n, per)
         d = self.delay
         idx = np.minimum(np.arange(n) + d, n - 1)
         ff = self.feedforward()
         y_rest = self._rest_output(limits)
         cutoff = self._cutoff(per, dt)
         corr = np.zeros(n)
+        corr_period = np.zeros(per) if folded else None  # type: ignore[arg-type]
         plays: list[float] = []
         best: tuple[float, FloatArray, FloatArray] | None = None
         for _ in range(max_plays if learning else 1):
@@ -309,7 +347,11 @@ class CommissionedController:
             self.info["held_command"] = guard.last
             y = y_all[pre.size + lead:]
             e = r - y
-            rms = float(np.sqrt(np.mean(e**2)))
+            rms = float(np.sqrt(np.mean(e[window] ** 2)))
+            # where the range clipped the command (it shows d samples later), learning cannot act
+            asked = cmd[lead:]
+            clipped = np.concatenate([np.zeros(d, dtype=bool), (asked < limits.low) | (asked > limits.high)])[:n]
+            e = np.where(clipped, 0.0, e)
             plays.append(rms)
             if best is None or rms < best[0]:
                 best = (rms, y, table[pre.size + lead:])
@@ -317,7 +359,13 @@ class CommissionedController:
                 break  # the error stopped falling: the best play stands
             if len(plays) > 1 and rms > 0.95 * min(plays[:-1]):
                 break
-            corr = _lowpass_periodic(corr + self.learning_gain * e, dt, cutoff)
+            if folded:  # the cycles after the first, phase-aligned, averaged: one period's error
+                whole = (n // per) * per  # type: ignore[operator]
+                e_per = e[per:whole].reshape(-1, per).mean(axis=0)  # type: ignore[misc]
+                corr_period = _lowpass_periodic(corr_period + self.learning_gain * e_per, dt, cutoff)  # type: ignore[operator]
+                corr = np.resize(corr_period, n)
+            else:
+                corr = _lowpass_periodic(corr + self.learning_gain * e, dt, cutoff)
         assert best is not None
         return TrackingResult(t=np.arange(n) * dt, reference=r, output=best[1], command=best[2], period=per,
                               clipped=guard.clipped, label=label,

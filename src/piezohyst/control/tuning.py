@@ -309,8 +309,9 @@ def tune_integral_safely(
        explain (aborted at once), and never goes past ``max_factor * ki_model`` or the model's
        ultimate gain divided by ``back_off``. The command then ramps back to rest. The loop is
        never taken near instability, and the commands stay within a few probe sizes of the hold.
-    3. ``ki`` = the largest well-damped gain / ``back_off`` (0, no feedback, if even the first
-       gain was not well damped).
+    3. ``ki`` = the largest well-damped gain / ``back_off``. When already the first gain is not
+       well damped (the model overestimates what the plant takes: an unmodelled resonance, more
+       delay), the gain is halved until it is, at most five times (else ``ki = 0``: no feedback).
 
     Parameters
     ----------
@@ -357,17 +358,29 @@ def tune_integral_safely(
     ys = np.empty(desired.size)
     for k, x in enumerate(desired):
         ys[k] = plant.step(ff.step(float(x)))
-    y_prev = float(ys[-1])
     noise = float(np.std(np.diff(ys[-settle:])) / math.sqrt(2.0))
     probe = min(opt.probe_fraction * lim.span, 0.5 * lim.max_step)
     y_probe = probe / volts_per_um  # µm the probe moves the stage, roughly
     pid = PID(0.0, opt.start_fraction * ki_model, 0.0, dt)
     trials: list[tuple[float, float]] = []
     experiments: list[dict[str, Any]] = []
-    ki_ok = 0.0
-    ki = opt.start_fraction * ki_model
-    sat = 0
-    while ki <= ki_top * (1 + 1e-9):
+    state = {"y": float(ys[-1]), "sat": 0}
+
+    def run(n: int, probe_on: bool, fb0: float, e0: float, check: bool) -> FloatArray | None:
+        """n samples at the hold; the feedback's outputs, or None if the trial had to stop."""
+        fbs = np.empty(n)
+        for k in range(n):
+            fb = pid.step(level - state["y"], state["sat"]) * volts_per_um
+            u = ff.step(level) + fb + (probe if probe_on else 0.0)
+            state["y"] = plant.step(u)
+            state["sat"] = plant.last_saturation
+            fbs[k] = fb
+            if check and (abs((level - state["y"]) - e0) > 4 * y_probe + 10 * noise or abs(fb - fb0) > 4 * probe):
+                return None
+        return fbs
+
+    def trial(ki: float) -> bool:
+        """Probe the loop at gain ki; True when it is well damped."""
         pid.ki = ki
         # long enough to settle (8 / ki) and to see ten periods of a loop oscillating where the
         # model's phase reaches -180 degrees
@@ -375,25 +388,20 @@ def tune_integral_safely(
                       max(round(0.25 / dt), 100)))
         answers = []
         aborted = False
+        integral0 = pid.integral
         for rep in range(2 * opt.repeats):
             sign = 1.0 if rep % 2 == 0 else -1.0  # probe on, then off
             fb0 = pid.integral * volts_per_um
-            e0 = level - y_prev
-            fbs = np.empty(n_p)
-            for k in range(n_p):
-                fb = pid.step(level - y_prev, sat) * volts_per_um
-                u = ff.step(level) + fb + (probe if sign > 0 else 0.0)
-                y_prev = plant.step(u)
-                sat = plant.last_saturation
-                fbs[k] = fb
-                if abs((level - y_prev) - e0) > 4 * y_probe + 10 * noise or abs(fb - fb0) > 4 * probe:
-                    aborted = True
-                    break
-            if aborted:
+            fbs = run(n_p, sign > 0, fb0, level - state["y"], True)
+            if fbs is None:
+                aborted = True
                 break
             # the feedback cancels the probe: its answer runs from 0 towards 1 (of the probe)
             answers.append(-sign * (fbs - fb0) / probe)
-        if aborted:
+        if aborted:  # back to where the trial began, probe off, feedforward alone, and settle
+            pid.integral = integral0
+            pid.ki = 0.0
+            run(n_p, False, 0.0, 0.0, False)
             overshoot = math.inf
         else:
             mean = _smooth(np.mean(answers, axis=0), max(1, int(round(0.5 / (ki * dt)))))
@@ -402,12 +410,27 @@ def tune_integral_safely(
         trials.append((ki, overshoot))
         experiments.append({"ki": ki, "overshoot": None if aborted else overshoot, "aborted": aborted,
                             "samples": n_p, "well_damped": ok})
-        if not ok:
-            break
-        ki_ok = ki
-        ki *= opt.gain_step
-    # back to rest, smoothly
-    plant.ramp_to(lim.rest)
+        return ok
+
+    ki_ok = 0.0
+    try:
+        ki = opt.start_fraction * ki_model
+        if trial(ki):  # up the ladder while the loop stays well damped
+            ki_ok = ki
+            while ki * opt.gain_step <= ki_top * (1 + 1e-9):
+                ki *= opt.gain_step
+                if not trial(ki):
+                    break
+                ki_ok = ki
+        else:  # the model overestimates what the plant takes: down, halving, at most five times
+            for _ in range(5):
+                ki *= 0.5
+                if trial(ki):
+                    ki_ok = ki
+                    break
+    finally:
+        plant.ramp_to(lim.rest)  # back to rest, smoothly, whatever happened
+
     ki_final = ki_ok / opt.back_off
     margins = resp.margins(ki_final) if ki_final > 0 else {}
     method = (f"integral gain from the model (phase margin {opt.phase_margin_deg:g} deg, gain margin "
