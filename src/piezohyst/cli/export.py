@@ -45,12 +45,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     if model.dynamic and args.fs is not None and own is not None and abs(1.0 / args.fs - own) > 1e-9 * own:
         raise UsageError(f"the model was identified at {1 / own:g} Hz; its compensator runs only at that rate "
                          f"(--fs {args.fs:g} refused)")
-    dt = own if model.dynamic else (1.0 / args.fs if args.fs is not None else None)
+    dt = own if own is not None else (1.0 / args.fs if args.fs is not None else None)
     prov = producer()
     if args.to == "c":
         from ..export.c import export_c
 
-        res = export_c(model, args.out, force=args.force, dt=dt, u_range=(lo, hi), max_slew=args.max_slew,
+        res = export_c(model, args.out, force=args.force, dt=own, u_range=(lo, hi), max_slew=args.max_slew,
                        provenance=[prov, f"model file: {model_path.name}; sha256 {sha}"], kp=args.kp, ki=args.ki,
                        fb_delay=args.fb_delay, fb_dt=dt)
     else:

@@ -177,12 +177,10 @@ def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, flo
     rng = check_u_range(u_range)
     kind = kind_of(model)
     own_dt = getattr(model, "dt", None)
-    if model.dynamic:
-        if dt is None:
-            dt = own_dt
-        if dt is None:
-            raise ValueError(f"the {kind} model has dynamics: give the sample period dt")
+    if model.dynamic and dt is None:
+        dt = own_dt  # a kind whose compensator needs no dt (Bouc-Wen's, eq. 10) has none
     comp = model.compensator(dt if model.dynamic else None, u_range=rng, max_slew=max_slew)
+    rate_bound = model.dynamic and own_dt is not None
     if isinstance(fb_delay, bool) or not isinstance(fb_delay, (int, np.integer)) or not 0 <= fb_delay <= 10000:
         raise ValueError(f"fb_delay must be an integer number of samples in 0..10000, got {fb_delay!r}")
     for nm, g in (("kp", kp), ("ki", ki)):
@@ -204,7 +202,7 @@ def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, flo
     head += [f" * model kind: {kind}; compensator: {type(comp).__name__}",
              f" * command range: {'%g .. %g V (clipped)' % rng if rng else 'none (not clipped)'}; "
              f"step limit: {'%g V per sample' % max_slew if max_slew else 'none'}",
-             f" * sample period: {'%.17g s (the model has dynamics: call it at exactly this rate)' % dt if model.dynamic else 'any (the model is rate independent)'}",
+             f" * sample period: {'%.17g s (the model has dynamics: call it at exactly this rate)' % dt if rate_bound else 'any (the compensator is rate independent)'}",
              " */"]
     guard = "PIEZOHYST_COMPENSATOR_H"
     hdr = "\n".join(head) + f"""
@@ -218,7 +216,7 @@ extern "C" {{
 """
     if rng is not None:
         hdr += f"#define COMPENSATOR_U_MIN {c_number(rng[0])}\n#define COMPENSATOR_U_MAX {c_number(rng[1])}\n"
-    if model.dynamic:
+    if rate_bound:
         hdr += f"#define COMPENSATOR_DT_S {c_number(dt)}\n#define COMPENSATOR_RATE_HZ {c_number(1.0 / dt)}\n"  # type: ignore[operator]
     hdr += f"""#define COMPENSATOR_FB_DELAY {int(fb_delay)}
 
@@ -314,7 +312,7 @@ double compensator_step_fb(double desired_um, double measured_um)
         src += "    ph_fb_sat = (u > COMPENSATOR_U_MAX) ? 1 : ((u < COMPENSATOR_U_MIN) ? -1 : 0);\n"
     src += "    return v;\n}\n"
     info = {"kind": kind, "compensator": type(comp).__name__, "u_range": list(rng) if rng else None,
-            "max_slew": max_slew, "dt": dt if model.dynamic else None, "kp": kp, "ki": ki, "fb_delay": int(fb_delay)}
+            "max_slew": max_slew, "dt": dt if rate_bound else None, "kp": kp, "ki": ki, "fb_delay": int(fb_delay)}
     return CExport(header=hdr, source=src, info=info)
 
 

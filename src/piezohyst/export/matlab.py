@@ -83,10 +83,11 @@ def export_matlab(model: Any, path: Any, *, u_range: tuple[float, float], dt: fl
     rng = check_u_range(u_range)
     assert rng is not None
     kind = kind_of(model)
-    if model.dynamic:
-        dt = dt if dt is not None else getattr(model, "dt", None)
+    if model.dynamic and dt is None:
+        dt = getattr(model, "dt", None)
         if dt is None:
-            raise ValueError(f"the {kind} model has dynamics: give the sample period dt")
+            raise ValueError(f"the {kind} model has dynamics: give the sample period of the reference table "
+                             "(dt; --fs on the command line)")
     comp = model.compensator(dt if model.dynamic else None, u_range=rng)
     t, x_d, u, step = reference_table(model, rng, dt if model.dynamic else None)
     doc = {
