@@ -289,8 +289,9 @@ def test_pid_transfer_function_is_what_the_pid_computes():
 def _integrator_with_delay_controller(ki, delay, dt=1e-4):
     """A commissioned controller whose loop is ki dt z/(z-1) z^-(delay+1): the model is a pure gain
     (one play operator of threshold 0) and the output scale cancels it."""
-    from piezohyst.commission import CommissionedController
     from piezohyst.control.tuning import TuningResult
+
+    CommissionedController = ph.CommissionedController
     from piezohyst.identify import FitResult
 
     gain = 0.02

@@ -212,8 +212,10 @@ class GuardedPlant:
     It offers the protocol of the plant it wraps: ``step``/``reset`` for a :class:`Plant`,
     ``play`` for a :class:`BufferedPlant`. Every command is clipped to ``limits`` and its change
     from the previous command cut to ``limits.max_step`` before the plant sees it; ``clipped`` and
-    ``slew_limited`` count what the guard changed, ``sent`` every command, ``largest_step`` the
-    largest change actually sent.
+    ``slew_limited`` count what the guard changed (a command beyond the range by less than 1e-9 of
+    it, a rounding at a bound, is clipped but not counted), ``sent`` every command,
+    ``largest_step`` the largest change actually sent, ``last_saturation`` whether the last command
+    asked for was above (+1) or below (-1) the range (for a loop's anti-windup).
 
     Parameters
     ----------

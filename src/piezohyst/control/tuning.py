@@ -364,7 +364,7 @@ def tune_integral_safely(
     pid = PID(0.0, opt.start_fraction * ki_model, 0.0, dt)
     trials: list[tuple[float, float]] = []
     experiments: list[dict[str, Any]] = []
-    state = {"y": float(ys[-1]), "sat": 0}
+    state = {"y": float(ys[-1]), "sat": 0, "u_lo": math.inf, "u_hi": -math.inf}
 
     def run(n: int, probe_on: bool, fb0: float, e0: float, check: bool) -> FloatArray | None:
         """n samples at the hold; the feedback's outputs, or None if the trial had to stop."""
@@ -374,6 +374,8 @@ def tune_integral_safely(
             u = ff.step(level) + fb + (probe if probe_on else 0.0)
             state["y"] = plant.step(u)
             state["sat"] = plant.last_saturation
+            state["u_lo"] = min(state["u_lo"], plant.last)
+            state["u_hi"] = max(state["u_hi"], plant.last)
             fbs[k] = fb
             if check and (abs((level - state["y"]) - e0) > 4 * y_probe + 10 * noise or abs(fb - fb0) > 4 * probe):
                 return None
@@ -389,6 +391,7 @@ def tune_integral_safely(
         answers = []
         aborted = False
         integral0 = pid.integral
+        state["u_lo"], state["u_hi"] = math.inf, -math.inf
         for rep in range(2 * opt.repeats):
             sign = 1.0 if rep % 2 == 0 else -1.0  # probe on, then off
             fb0 = pid.integral * volts_per_um
@@ -409,7 +412,8 @@ def tune_integral_safely(
         ok = overshoot <= opt.overshoot_limit
         trials.append((ki, overshoot))
         experiments.append({"ki": ki, "overshoot": None if aborted else overshoot, "aborted": aborted,
-                            "samples": n_p, "well_damped": ok})
+                            "samples": n_p, "well_damped": ok, "probe_V": probe,
+                            "command_band_V": (state["u_lo"], state["u_hi"])})
         return ok
 
     ki_ok = 0.0
