@@ -184,7 +184,7 @@ def test_c_integral_feedback_equals_python_pid(tmp_path, driver_obj):
     ff = model.compensator(None)
     ff.reset()
     pid = ph.PID(kp, ki, 0.0, DT)
-    sat, last, out = 0, None, np.empty(x.size)
+    sat, out = 0, np.empty(x.size)
     for k in range(x.size):
         e = x[max(k - delay, 0)] - meas[k]
         u = ff.step(x[k]) + pid.step(e, sat)

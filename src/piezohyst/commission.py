@@ -244,10 +244,11 @@ class CommissionedController:
         n = r.size
         per = period if period is not None else reference_period(r)
         learn = learning and per is not None and n >= 2 * per
+        p = int(per) if per is not None else 1  # the period where learning uses it
         ff = self.feedforward()
         pid = self.tuning.pid(dt) if (feedback and self.tuning is not None) else None
         d = self.delay
-        corr = np.zeros(per) if learn else None
+        corr = np.zeros(p) if learn else None
         best_corr = corr
         best_rms = np.inf
         learning_on = learn
@@ -275,7 +276,7 @@ class CommissionedController:
             for k in range(n):
                 fb = pid.step(r[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
                 j = min(k + d, n - 1)
-                target = r[j] + (corr[j % per] if corr is not None else 0.0)  # type: ignore[index, operator]
+                target = r[j] + (corr[j % p] if corr is not None else 0.0)
                 uk = ff.step(target) + fb
                 watch.command(k, uk)
                 yk = guard.step(uk)
@@ -285,8 +286,8 @@ class CommissionedController:
                 y[k] = yk
                 watch.output(k, yk, y)
                 y_prev = yk
-                if learn and (k + 1) % per == 0:
-                    c0 = k + 1 - per
+                if learn and (k + 1) % p == 0:
+                    c0 = k + 1 - p
                     e = r[c0:k + 1] - y[c0:k + 1]
                     rms = float(np.sqrt(np.mean(e**2)))
                     e = np.where(clipped_at[c0:k + 1], 0.0, e)
@@ -298,7 +299,7 @@ class CommissionedController:
                         if rms < best_rms:
                             best_rms, best_corr = rms, corr.copy()  # type: ignore[union-attr]
                             # the error of cycle m shows the correction applied in it; align by phase
-                            corr = _lowpass_periodic(corr + self.learning_gain * np.roll(e, -(c0 % per)), dt, cutoff)  # type: ignore[operator]
+                            corr = _lowpass_periodic(corr + self.learning_gain * np.roll(e, -(c0 % p)), dt, cutoff)  # type: ignore[operator]
                             if len(cycle_rms) > 2 and rms > 0.95 * cycle_rms[-2]:
                                 learning_on = False
                                 corr = best_corr
@@ -360,8 +361,8 @@ class CommissionedController:
             if len(plays) > 1 and rms > 0.95 * min(plays[:-1]):
                 break
             if folded:  # the cycles after the first, phase-aligned, averaged: one period's error
-                whole = (n // per) * per  # type: ignore[operator]
-                e_per = e[per:whole].reshape(-1, per).mean(axis=0)  # type: ignore[misc]
+                p = int(per)  # type: ignore[arg-type]
+                e_per = e[p:(n // p) * p].reshape(-1, p).mean(axis=0)
                 corr_period = _lowpass_periodic(corr_period + self.learning_gain * e_per, dt, cutoff)  # type: ignore[operator]
                 corr = np.resize(corr_period, n)
             else:
@@ -448,10 +449,10 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
             ds = plant.excite(sent)
         else:
             y = guard.play(cmd)
-            ds = Dataset(np.arange(cmd.size) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "step"})
+            ds = Dataset(np.arange(cmd.size, dtype=np.float64) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "step"})
     else:
         y = guard.play(cmd)
-        ds = Dataset(np.arange(cmd.size) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "play"})
+        ds = Dataset(np.arange(cmd.size, dtype=np.float64) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "play"})
     ident_counts = guard.counts()
     fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain,

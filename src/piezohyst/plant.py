@@ -130,7 +130,7 @@ def open_loop(plant: Any, u: Any) -> Dataset:
     else:
         y = play_checked(plant, x)
         how = "play"
-    return Dataset(np.arange(x.size) * dt, x, y, {"source": type(plant).__name__, "driven_by": how})
+    return Dataset(np.arange(x.size, dtype=np.float64) * dt, x, y, {"source": type(plant).__name__, "driven_by": how})
 
 
 # -- the safe layer ----------------------------------------------------------------------------------

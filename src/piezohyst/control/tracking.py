@@ -1,7 +1,8 @@
 """Closed-loop tracking (the paper's Fig. 5) and its figures of merit (Tables I and II).
 
 ``track`` drives any object that follows the Plant protocol (``dt``, ``reset()``,
-``step(u) -> y``) sample by sample::
+``step(u) -> y``) sample by sample (a plant that only plays tables, the BufferedPlant protocol,
+gets the feedforward's command table in one play, and no feedback)::
 
     e_k   = r_k - y_{k-1}                  (the latest measurement before u_k is chosen)
     fb_k  = PID(e_k)                       (0 without feedback)
@@ -283,7 +284,7 @@ def track(
             raise ValueError("a plant that plays tables needs a feedforward to compute its command table")
         u = feedforward.command(r) if hasattr(feedforward, "command") else _stream(feedforward, r)
         y = play_checked(plant, u)
-        return TrackingResult(t=np.arange(r.size) * dt, reference=r, output=y, command=u,
+        return TrackingResult(t=np.arange(r.size, dtype=np.float64) * dt, reference=r, output=y, command=u,
                               period=period if period is not None else estimate_period(r), clipped=None,
                               label=label, info={"mode": "buffered", "feedback_at": None, "feedback": False})
     if feedback is not None:
@@ -327,7 +328,7 @@ def track(
     clipped = None
     if clipped0 is not None:
         clipped = int(getattr(plant, "clipped")) - (0 if reset else int(clipped0))
-    return TrackingResult(t=np.arange(n) * dt, reference=r, output=y, command=u,
+    return TrackingResult(t=np.arange(n, dtype=np.float64) * dt, reference=r, output=y, command=u,
                           period=period if period is not None else estimate_period(r),
                           clipped=clipped, label=label,
                           info={"mode": "step", "feedback_at": feedback_at if feedback is not None else None,

@@ -1,10 +1,21 @@
-"""PID tuning on the plant itself (the method ``piezohyst reproduce`` uses and documents).
+"""Feedback tuning: on the plant the paper's way, and safely from the model (``commission``).
 
-The stage's mechanics are a lightly damped resonance (the paper's m, b, k: 1.7 kHz, damping
-ratio 0.0017) that a 1 Hz identification record cannot see. Proportional and derivative action
-reach that resonance with little attenuation and would destabilise the loop, so the feedback
-around the feedforward is integral-dominant, and its gain is found by experiment, in the spirit
-of Ziegler and Nichols' closed-loop method:
+**Safe tuning** (:func:`tune_integral_safely`, what :func:`~piezohyst.commission` uses). The gain
+comes from the identified model and the measured delay: the small-signal loop of integral feedback
+around the model (:func:`small_signal_responses`, :func:`integral_loop_response`) gives the largest
+gain with a phase margin of 60 degrees and a gain margin of 3 on every branch of the hysteresis
+(a phase-margin rule for an integrator with delay). It is then refined on the plant only by
+bounded experiments: small command probes (1 % of the range) at a ladder of gains in small steps,
+stopped at the first gain whose answer overshoots (a loop losing its damping, seen at the probe's
+amplitude) - never by raising the gain until the loop is unstable. Its limits are
+:class:`SafeTuningOptions`.
+
+**Experiment-based tuning** (:func:`tune_integral_feedback`, the method ``piezohyst reproduce``
+uses for the paper's experiment, kept as it was). The stage's mechanics are a lightly damped
+resonance (the paper's m, b, k: 1.7 kHz, damping ratio 0.0017) that a 1 Hz identification record
+cannot see. Proportional and derivative action reach that resonance with little attenuation and
+would destabilise the loop, so the feedback around the feedforward is integral-dominant, and its
+gain is found by experiment, in the spirit of Ziegler and Nichols' closed-loop method:
 
 1. hold a constant desired displacement (mid-range) through the feedforward, with integral
    feedback of gain ``ki``, for ``hold_s`` seconds, and record the error's RMS over the second
@@ -14,9 +25,9 @@ of Ziegler and Nichols' closed-loop method:
    ``ki_u``) or the loop goes unstable;
 3. use ``ki = ki_u / gain_margin`` (default 3, about 10 dB of gain margin, as Ziegler-Nichols).
 
-Only ``dt``, ``reset()`` and ``step()`` of the plant are used, so the same routine tunes a real
-stage; the excursions stay small (the reference is constant; the run stops at the first sign of
-amplification).
+It drives the loop to its stability limit (on the VirtualRig the last trial is unstable, with
+commands far outside the amplifier's range, which the rig clips): use it only on a simulation, or
+where that is acceptable; :func:`tune_integral_safely` is for real stages.
 """
 
 from __future__ import annotations
@@ -364,7 +375,7 @@ def tune_integral_safely(
     pid = PID(0.0, opt.start_fraction * ki_model, 0.0, dt)
     trials: list[tuple[float, float]] = []
     experiments: list[dict[str, Any]] = []
-    state = {"y": float(ys[-1]), "sat": 0, "u_lo": math.inf, "u_hi": -math.inf}
+    state: dict[str, Any] = {"y": float(ys[-1]), "sat": 0, "u_lo": math.inf, "u_hi": -math.inf}
 
     def run(n: int, probe_on: bool, fb0: float, e0: float, check: bool) -> FloatArray | None:
         """n samples at the hold; the feedback's outputs, or None if the trial had to stop."""

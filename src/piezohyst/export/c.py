@@ -199,10 +199,12 @@ def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, flo
     head = ["/*", " * compensator: the feedforward of a piezohyst model, as C99 (no dynamic memory, libm only).", " *"]
     for line in provenance or []:
         head.append(f" * {line}")
+    period = (f"{float(dt):.17g} s (the model has dynamics: call it at exactly this rate)"  # type: ignore[arg-type]
+              if rate_bound else "any (the compensator is rate independent)")
     head += [f" * model kind: {kind}; compensator: {type(comp).__name__}",
              f" * command range: {'%g .. %g V (clipped)' % rng if rng else 'none (not clipped)'}; "
              f"step limit: {'%g V per sample' % max_slew if max_slew else 'none'}",
-             f" * sample period: {'%.17g s (the model has dynamics: call it at exactly this rate)' % dt if rate_bound else 'any (the compensator is rate independent)'}",
+             f" * sample period: {period}",
              " */"]
     guard = "PIEZOHYST_COMPENSATOR_H"
     hdr = "\n".join(head) + f"""
@@ -216,8 +218,8 @@ extern "C" {{
 """
     if rng is not None:
         hdr += f"#define COMPENSATOR_U_MIN {c_number(rng[0])}\n#define COMPENSATOR_U_MAX {c_number(rng[1])}\n"
-    if rate_bound:
-        hdr += f"#define COMPENSATOR_DT_S {c_number(dt)}\n#define COMPENSATOR_RATE_HZ {c_number(1.0 / dt)}\n"  # type: ignore[operator]
+    if rate_bound and dt is not None:
+        hdr += f"#define COMPENSATOR_DT_S {c_number(dt)}\n#define COMPENSATOR_RATE_HZ {c_number(1.0 / dt)}\n"
     hdr += f"""#define COMPENSATOR_FB_DELAY {int(fb_delay)}
 
 /* Back to the model's initial (de-energised) state; the feedback's integral to 0. */
