@@ -258,10 +258,12 @@ def test_matlab_reader_note_reproduces_the_reference_commands(tmp_path):
 
 
 # -- python-control --------------------------------------------------------------------------------
-control = pytest.importorskip("control")
+@pytest.fixture
+def control():
+    return pytest.importorskip("control")  # the optional extra: only these tests need it
 
 
-def test_bouc_wen_linear_part_as_transfer_function():
+def test_bouc_wen_linear_part_as_transfer_function(control):
     from piezohyst.export.pycontrol import bouc_wen_linear_part
 
     bw = MODELS["bouc-wen"]
@@ -275,7 +277,7 @@ def test_bouc_wen_linear_part_as_transfer_function():
     assert math.isclose(zeta[0], bw.damping_ratio, rel_tol=1e-9)
 
 
-def test_pid_transfer_function_is_what_the_pid_computes():
+def test_pid_transfer_function_is_what_the_pid_computes(control):
     from piezohyst.export.pycontrol import pid_transfer_function
 
     pid = ph.PID(0.3, 250.0, 2e-4, 1e-4)
@@ -314,7 +316,7 @@ def _integrator_with_delay_controller(ki, delay, dt=1e-4):
                                   identification=ds)
 
 
-def test_loop_margins_of_an_integrator_with_delay_match_the_closed_form():
+def test_loop_margins_of_an_integrator_with_delay_match_the_closed_form(control):
     from piezohyst.export.pycontrol import loop_margins
 
     dt, ki, d = 1e-4, 600.0, 3
