@@ -46,6 +46,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         raise UsageError(f"the model was identified at {1 / own:g} Hz; its compensator runs only at that rate "
                          f"(--fs {args.fs:g} refused)")
     dt = own if own is not None else (1.0 / args.fs if args.fs is not None else None)
+    if args.ki != 0.0 and dt is None:
+        raise UsageError("--ki needs the sample period of the loop: give --fs (the model has no rate of its own)")
     prov = producer()
     if args.to == "c":
         from ..export.c import export_c
@@ -84,8 +86,8 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--u-max", type=float, default=100.0, help="amplifier's highest voltage (default 100)")
     p.add_argument("--max-slew", type=float, default=None, help="largest command change per sample, V (default none)")
     p.add_argument("--fs", type=float, default=None,
-                   help="sample rate, Hz, of the feedback's integral for a rate-independent model (a model with "
-                        "dynamics runs at its own rate)")
+                   help="sample rate, Hz, where the model has none of its own: the feedback's integral (c) and "
+                        "the reference table (matlab); a model identified at a rate runs only at that rate")
     p.add_argument("--kp", type=float, default=0.0, help="compiled-in proportional gain of compensator_step_fb, V/um")
     p.add_argument("--ki", type=float, default=0.0, help="compiled-in integral gain of compensator_step_fb, V/(um s)")
     p.add_argument("--fb-delay", type=int, default=0, help="COMPENSATOR_FB_DELAY, samples (default 0)")
