@@ -146,7 +146,7 @@ def test_c_equals_piezohyst_compensate(name, tmp_path, driver_obj, capsys):
     cmd_csv = tmp_path / "cmd.csv"
     assert main(["compensate", "--model", str(path), "--reference", str(ref_csv), "--u-min", "-20",
                  "--u-max", "120", "--clip", "-o", str(cmd_csv)]) == 0
-    expected = np.loadtxt(cmd_csv, delimiter=",", comments="#", skiprows=5)[:, 2]
+    expected = np.loadtxt(cmd_csv, delimiter=",", comments="#", skiprows=4)[:, 2]
     got = run_c(exe, ref)
     assert got.size == expected.size == ref.size
     assert np.max(np.abs(got - expected)) <= 1e-9, name

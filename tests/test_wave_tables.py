@@ -60,7 +60,7 @@ def test_each_extension_writes_its_format(tmp_path, pi_file, capsys):
         if ext in ("csv", "txt"):
             text = out.read_text()
             assert text.startswith("# piezohyst")
-            got[ext] = np.loadtxt(out, delimiter=",", comments="#", skiprows=5)[:, 2]
+            got[ext] = np.loadtxt(out, delimiter=",", comments="#", skiprows=4)[:, 2]
         elif ext == "npy":
             got[ext] = np.load(out, allow_pickle=False)
         elif ext == "mat":
@@ -128,7 +128,7 @@ def test_fs_resamples_to_the_table_rate(tmp_path, pi_file, rate_file, capsys):
                  "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["resampled"] and res["fs_hz"] == 2500.0
-    tab = np.loadtxt(out, delimiter=",", comments="#", skiprows=5)
+    tab = np.loadtxt(out, delimiter=",", comments="#", skiprows=4)
     assert np.allclose(np.diff(tab[:, 0]), 4e-4)
     assert np.allclose(tab[:, 1], x[::4][:tab.shape[0]], atol=1e-12)  # every 4th sample of the reference
     # a model with dynamics runs only at the rate it was identified at: refused, with the way out

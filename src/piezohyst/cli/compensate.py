@@ -154,12 +154,13 @@ def cmd_compensate(args: argparse.Namespace) -> int:
                 f"the command leaves the amplifier range {lo:g}..{hi:g} V at {n_out} of {u.size} samples "
                 f"(first at t = {t[i]:.6g} s: {u[i]:.4g} V); change the reference or pass --clip")
     n_limited = n_out
+    # three comment lines, as before tables had other formats (readers skip 4 lines: these and the header)
     comments = [producer(), f"model: {args.model} ({model.kind}); sha256 {sha}; reference: {args.reference}",
-                f"units: t in s, x_d in um, u in V; amplifier range {lo:g}..{hi:g} V; clipped samples: {n_limited}",
-                f"sample rate {1.0 / dt:.12g} Hz" + ("; resampled from the reference's "
-                                                       f"{1.0 / dt_ref:.12g} Hz" if resampled else "")]
+                f"units: t in s, x_d in um, u in V; amplifier range {lo:g}..{hi:g} V; clipped samples: {n_limited}; "
+                f"sample rate {1.0 / dt:.12g} Hz" + (f" (resampled from the reference's {1.0 / dt_ref:.12g} Hz)"
+                                                     if resampled else "")]
     if periodic_info is not None:
-        comments.append(f"periodic: one cycle of the steady state after {periodic_info['cycles']} cycles; "
+        comments[2] += (f"; periodic: one cycle of the steady state after {periodic_info['cycles']} cycles, "
                         f"wrap-around step {periodic_info['wrap_step_V']:.4g} V, largest inner step "
                         f"{periodic_info['largest_inner_step_V']:.4g} V")
     write_table(out, t, ref, u, dt=dt, comments=comments, force=args.force,
