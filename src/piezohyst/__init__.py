@@ -39,11 +39,12 @@ _LAZY: dict[str, str] = {
     "equal_thresholds": "models", "play_operator": "models", "kinds": "models",
     "ModelFileError": "modelio", "load_model": "modelio", "save_model": "modelio",
     "PSOResult": "pso", "pso_minimize": "pso",
-    "Plant": "plant", "open_loop": "plant",
+    "Plant": "plant", "open_loop": "plant", "BufferedPlant": "plant", "CommandLimits": "plant",
+    "GuardedPlant": "plant",
     "ClippingWarning": "rig", "RigSettings": "rig", "VirtualRig": "rig",
     "estimate_period": "signals", "sinusoid": "signals",
 }
-_SUBMODULES = ("signals", "models", "identify", "control", "data", "modelio", "plots", "experiments")
+_SUBMODULES = ("signals", "models", "identify", "control", "data", "modelio", "plots", "experiments", "export")
 
 __all__ = sorted([*_LAZY, *_SUBMODULES, "__version__"])
 
@@ -64,7 +65,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
-    from . import control, data, experiments, identify, modelio, models, plots, signals  # noqa: F401
+    from . import control, data, experiments, export, identify, modelio, models, plots, signals  # noqa: F401
     from .analysis import LoopFigures, loop_figures  # noqa: F401
     from .commissioning import CommissionedController, commission  # noqa: F401
     from .control import (BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult,  # noqa: F401
@@ -76,7 +77,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .models import (AsymmetricPI, BoucWen, BoucWenHysteresis, BoucWenStepper, Compensator, HysteresisModel,  # noqa: F401
                          OutputMap, PIStepper, PrandtlIshlinskii, Preisach, RateDependent, RateDependentPI,
                          equal_thresholds, kinds, play_operator)
-    from .plant import Plant, open_loop  # noqa: F401
+    from .plant import BufferedPlant, CommandLimits, GuardedPlant, Plant, open_loop  # noqa: F401
     from .pso import PSOResult, pso_minimize  # noqa: F401
     from .rig import ClippingWarning, RigSettings, VirtualRig  # noqa: F401
     from .signals import estimate_period, sinusoid  # noqa: F401

@@ -1,22 +1,34 @@
 """Commissioning a stage: identify it, build the best feedforward and feedback, track (beyond the paper).
 
 ``ctl = commission(plant)`` runs an identification experiment on any object that follows the
-Plant protocol, and returns a :class:`CommissionedController` whose ``ctl.track(reference)``
-returns a :class:`~piezohyst.control.tracking.TrackingResult`. Nothing here assumes the plant is
-the :class:`~piezohyst.rig.VirtualRig`: it is how a user commissions a real stage.
+Plant protocol (``reset()``, ``step(u)``: a per-sample loop) or the BufferedPlant protocol
+(``play(table)``: a wave-table controller or a buffered DAQ), and returns a
+:class:`CommissionedController` whose ``ctl.track(reference)`` returns a
+:class:`~piezohyst.control.tracking.TrackingResult`. Nothing here assumes the plant is the
+:class:`~piezohyst.rig.VirtualRig`: it is how a user commissions a real stage.
+
+**Safety first.** Everything sent to the stage passes the safe layer of :mod:`piezohyst.plant`:
+commands stay inside the amplifier's range and change by at most ``max_step_fraction`` of the range
+per sample (default 2 %: 2 V per sample on 0-100 V; change it with ``commission(...,
+max_step_fraction=...)``, the range with ``u_range=...``, the command a plant that has not been
+driven yet holds with ``u_rest=...``). The experiments are designed inside those limits (the
+guard counts what it had to change, ``ctl.info["safety"]``; it is zero for the built-in
+experiments); a user's own ``excitation`` that is not is refused, not altered.
 
 What it does, and why (the contribution of each step is measured in ``piezohyst reproduce``'s
 ablation and in ``tests/test_commission.py``):
 
-1. **Identification experiment** (:func:`commissioning_excitation`, ~10 s, segments joined by
-   raised-cosine ramps): for fitting, a slow approach from rest (0 V, or the nearest end of the
-   range) to the bottom of the range (the initial loading curve, which a tracking run from rest
-   starts on), a full-range 1 Hz sinusoid (major loop), a 2 Hz sinusoid
-   of decaying amplitude (nested minor loops: every threshold is exercised), full-range 5 and
-   10 Hz sinusoids (rate dependence) and a hold at mid-range (creep); for choosing among the
-   candidate models, other frequencies and amplitudes over the same band (3 Hz, 1.5 Hz decaying,
-   7 Hz), so the choice rewards what carries over rather than what fits. Within the amplifier
-   range the plant reports (``plant.u_range``) or the one given.
+1. **Identification experiment** (:func:`commissioning_excitation`, ~11 s): for fitting, a slow
+   approach from rest (0 V, or the nearest end of the range) to the bottom of the range (the
+   initial loading curve, which a tracking run from rest starts on), a full-range 1 Hz sinusoid
+   (major loop), a 2 Hz sinusoid of decaying amplitude (nested minor loops: every threshold is
+   exercised), full-range 5 and 10 Hz sinusoids (rate dependence) and a hold at mid-range
+   (creep); for choosing among the candidate models, other frequencies and amplitudes over the
+   same band (3 Hz, 1.5 Hz decaying, 7 Hz), so the choice rewards what carries over rather than
+   what fits. Every change of segment is a raised-cosine ramp, no sinusoid is faster than the
+   step limit allows at the plant's sample rate, and the table ends back at rest. Within the
+   amplifier range the plant reports (``plant.u_range``) or the one given. A buffered plant
+   plays it as one table (from the command it holds).
 2. **Model**: chosen on held-out data among every linear kind and structure
    (:func:`~piezohyst.identify.fit_model`): P-I, asymmetric P-I or Preisach, with an input lag
    (amplifier + stack) and output lags (rate dependence, creep) where they predict better, the
@@ -24,94 +36,137 @@ ablation and in ``tests/test_commission.py``):
    fit, invertible with a stable inverse by construction (:mod:`piezohyst.identify.linear`).
 3. **Feedforward**: the model's compensator (its exact or numerical inverse), fed the
    reference ``delay`` samples ahead (the reference is known in advance; this cancels the
-   sensor's delay).
-4. **Feedback**: integral action, tuned on the plant
-   (:func:`~piezohyst.control.tuning.tune_integral_feedback`, ``ki = ki_u / 3``), added to the
-   *command*, scaled by the model's mean slope (V per µm), with anti-windup on the plant's
-   saturation. Not to the feedforward's input: the inverse of the input lag is a lead with a
-   high-frequency gain of ``1/(1-b)`` (8.5 for 0.8 ms at 10 kHz) that would hand the
-   feedback's noise and the stage's resonance back to the loop amplified (measured: a
-   sustained 1.7 kHz oscillation on the rig).
-5. **Iterative learning** for references that repeat: after each cycle the measured error
-   corrects the feedforward's input for the next one, ``c <- Q(c + gamma e)``, with ``Q`` a
-   zero-phase low-pass (cut-off ``ilc_cutoff_hz``, default 15 harmonics of the reference,
-   at least 50 Hz). It converges when ``|Q(w)| |1 - gamma G(w)| < 1`` wherever Q passes, G being
-   the response of the output to the correction; with the model's inverse in the loop
-   ``G ~ 1`` below the cut-off, so ``gamma = 0.5`` gives a contraction of about 0.5 per cycle.
-   Learning stops (the best correction is kept) as soon as a cycle's RMS error is no longer
-   below 0.95 times the best so far.
+   sensor's delay). Every run starts with a lead-in: the desired displacement ramps from rest to
+   the reference's first value slowly enough that the commands stay inside the step limit.
+4. **Feedback** (plants with a per-sample loop only): integral action added to the *command*,
+   scaled by the model's mean inverse slope (V per µm), with anti-windup on the range. Its gain
+   comes from the identified model and the measured delay (a phase-margin rule on the model's
+   small-signal loop), refined on the plant only by bounded experiments that stop at the first
+   sign of poor damping (:func:`~piezohyst.control.tuning.tune_integral_safely`; options in
+   :class:`~piezohyst.control.tuning.SafeTuningOptions`, ``commission(..., tuning=...)``). Not
+   to the feedforward's input: the inverse of the input lag is a lead with a high-frequency gain
+   of ``1/(1-b)`` (8.5 for 0.8 ms at 10 kHz) that would hand the feedback's noise and the stage's
+   resonance back to the loop amplified. A plant that only plays tables has no per-sample loop:
+   it gets no feedback, and its results say so (``info["feedback"]`` is False with the reason).
+5. **Iterative learning** for references that repeat. On a per-sample plant, after each cycle
+   the measured error corrects the feedforward's input for the next one, ``c <- Q(c + gamma e)``,
+   with ``Q`` a zero-phase low-pass (cut-off ``ilc_cutoff_hz``, default 15 harmonics of the
+   reference, at least 50 Hz). On a buffered plant the same rule runs across plays of the whole
+   table (play, measure, correct, play again; at most ``max_plays``). It converges when
+   ``|Q(w)| |1 - gamma G(w)| < 1`` wherever Q passes, G being the response of the output to the
+   correction; with the model's inverse in the loop ``G ~ 1`` below the cut-off, so
+   ``gamma = 0.5`` gives a contraction of about 0.5 per cycle. Learning stops (the best
+   correction is kept) as soon as a cycle's RMS error is no longer below 0.95 times the best so
+   far.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from ._validation import FloatArray, as_signal
-from .control.tracking import LoopWatch, TrackingResult
-from .control.tuning import TuningResult, tune_integral_feedback
+from .control.tracking import LoopWatch, TrackingResult, lead_in
+from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
-from .plant import open_loop
 from .identify import FitResult, fit_model
 from .models.base import Compensator, kind_of
+from .plant import (MAX_STEP_FRACTION, CommandLimits, GuardedPlant, check_plant, check_table, plant_mode,
+                    plant_u_range)
 from .signals import estimate_period, sinusoid
 
 #: The kinds commissioning chooses from: fast to fit, each with an exact or numerical inverse.
 COMMISSION_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach", "bouc-wen-hysteresis")
+#: What a result says when a plant has no per-sample loop.
+NO_LOOP = ("no feedback: the plant only plays tables (BufferedPlant), so there is no per-sample loop to "
+           "close; learning across plays corrects the feedforward instead")
 
 
-def _decaying(freq: float, seconds: float, lo: float, hi: float, dt: float, end: float) -> FloatArray:
-    """A sinusoid from ``lo`` whose amplitude falls linearly to ``end`` of the full one: nested minor loops."""
+def _excitation_parts(dt: float, limits: CommandLimits) -> tuple[list[FloatArray], list[FloatArray]]:
+    """The segments fitted on and the segments chosen on (module docstring, step 1)."""
+    lo, hi = limits.low, limits.high
     mid, amp = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    t = np.arange(int(round(seconds / dt))) * dt
-    return mid - amp * np.cos(2 * np.pi * freq * t) * np.linspace(1.0, end, t.size)
+    # a full-range sinusoid of f Hz changes by at most pi f dt (hi - lo) per sample
+    f_cap = 0.5 * limits.max_step / (math.pi * dt * (hi - lo))
+
+    def sine(f: float, cycles: float) -> FloatArray:
+        return sinusoid(min(f, f_cap), cycles, lo, hi, dt)
+
+    def decaying(f: float, cycles: float, end: float) -> FloatArray:
+        f = min(f, f_cap)
+        t = np.arange(int(round(cycles / f / dt))) * dt
+        return mid - amp * np.cos(2 * np.pi * f * t) * np.linspace(1.0, end, t.size)
+
+    rest = limits.rest
+    # from rest to the bottom of the range slowly: the initial loading curve is part of the model
+    n = max(int(round(0.25 / dt)), 2)
+    approach = rest + (lo - rest) * 0.5 * (1 - np.cos(np.pi * np.arange(n + 1) / n))
+    fit = [approach, sine(1.0, 2), decaying(2.0, 6, 0.2), sine(5.0, 5), sine(10.0, 5), np.full(int(round(0.5 / dt)), mid)]
+    choose = [sine(3.0, 3), decaying(1.5, 2, 0.5), sine(7.0, 4)]
+    return fit, choose
 
 
-def join_smoothly(parts: list[FloatArray], dt: float, ramp_s: float = 0.02) -> FloatArray:
-    """Concatenate command segments, joining ends that differ with a raised-cosine ramp of
-    ``ramp_s`` seconds, so the command never steps between segments."""
-    out = [parts[0]]
-    n = max(int(round(ramp_s / dt)), 2)
-    shape = 0.5 * (1 - np.cos(np.pi * np.arange(1, n + 1) / (n + 1)))
-    for p in parts[1:]:
-        a, b = float(out[-1][-1]), float(p[0])
-        if a != b:
-            out.append(a + (b - a) * shape)
-        out.append(p)
+def _join(parts: list[FloatArray], start: float, limits: CommandLimits, dt: float) -> FloatArray:
+    out: list[FloatArray] = [np.empty(0)]
+    last = start
+    for seg in parts:
+        out.append(limits.ramp(last, float(seg[0]), dt))
+        out.append(seg)
+        last = float(seg[-1])
     return np.concatenate(out)
 
 
-def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100.0)) -> FloatArray:
+def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100.0), *,
+                             max_step_fraction: float = MAX_STEP_FRACTION, start: float | None = None) -> FloatArray:
     """The identification experiment's command (V): see the module docstring, step 1.
 
-    Its first :func:`identification_length` samples are fitted on; the rest (other frequencies
-    and amplitudes over the same band) only choose the model among the candidates.
+    Every segment starts where the previous one ended or is joined to it by a raised-cosine ramp,
+    and the whole command changes by at most half of ``max_step_fraction * (high - low)`` per
+    sample: a sinusoid that would be faster at this ``dt`` is slowed to that limit. ``start`` is the
+    command the plant holds before (default: 0 V, or the nearest end of the range); the table
+    begins with a ramp from it and ends with a ramp back to it. Its first
+    :func:`identification_length` samples are fitted on; the rest only chooses among the
+    candidate models.
     """
-    return join_smoothly([*_identification_parts(dt, u_range), *_validation_parts(dt, u_range)], dt)
+    limits = CommandLimits.for_range(u_range, max_step_fraction=max_step_fraction, rest=start)
+    fit, choose = _excitation_parts(dt, limits)
+    head = _join(fit, limits.rest, limits, dt)
+    tail = _join(choose, float(head[-1]), limits, dt)
+    back = limits.ramp(float(tail[-1]), limits.rest, dt)
+    return np.concatenate([head, tail, back])
 
 
-def _identification_parts(dt: float, u_range: tuple[float, float]) -> list[FloatArray]:
-    lo, hi = u_range
-    mid = 0.5 * (lo + hi)
-    rest = min(max(0.0, lo), hi)  # where a de-energised stage sits
-    # from rest to the bottom of the range slowly: the initial loading curve is part of the model
-    n = int(round(0.25 / dt))
-    approach = rest + (lo - rest) * 0.5 * (1 - np.cos(np.pi * np.arange(n + 1) / n))
-    return [approach, sinusoid(1.0, 2, lo, hi, dt), _decaying(2.0, 3.0, lo, hi, dt, 0.2),
-            sinusoid(5.0, 5, lo, hi, dt), sinusoid(10.0, 5, lo, hi, dt), np.full(int(round(0.5 / dt)), mid)]
-
-
-def _validation_parts(dt: float, u_range: tuple[float, float]) -> list[FloatArray]:
-    lo, hi = u_range
-    return [sinusoid(3.0, 3, lo, hi, dt), _decaying(1.5, 4 / 3, lo, hi, dt, 0.5), sinusoid(7.0, 4, lo, hi, dt)]
-
-
-def identification_length(dt: float, u_range: tuple[float, float] = (0.0, 100.0)) -> int:
+def identification_length(dt: float, u_range: tuple[float, float] = (0.0, 100.0), *,
+                          max_step_fraction: float = MAX_STEP_FRACTION, start: float | None = None) -> int:
     """Samples of :func:`commissioning_excitation` that are fitted on (the rest is for choosing)."""
-    return int(join_smoothly(_identification_parts(dt, u_range), dt).size)
+    limits = CommandLimits.for_range(u_range, max_step_fraction=max_step_fraction, rest=start)
+    return int(_join(_excitation_parts(dt, limits)[0], limits.rest, limits, dt).size)
+
+
+def reference_period(r: FloatArray) -> int | None:
+    """The reference's period in samples: :func:`~piezohyst.signals.estimate_period`'s estimate,
+    refined to the lag (within 3 % of it) where the reference best matches itself shifted.
+
+    The estimate is the first local maximum of the autocorrelation above 0.95, which can sit a
+    little before the true period (measured: 9916 samples for a 1 Hz sinusoid at 10 kHz); learning
+    indexes its correction by the period, so the lag must be the period itself.
+    """
+    p0 = estimate_period(r)
+    if p0 is None:
+        return None
+    x = r - float(np.mean(r))
+    lo, hi = max(2, int(math.floor(0.97 * p0))), min(int(math.ceil(1.03 * p0)), x.size // 2)
+    best, best_err = p0, math.inf
+    for lag in range(lo, hi + 1):
+        d = x[lag:] - x[:-lag]
+        err = float(np.mean(d * d))
+        if err < best_err:
+            best, best_err = lag, err
+    return best
 
 
 def _lowpass_periodic(x: FloatArray, dt: float, cutoff_hz: float) -> FloatArray:
@@ -124,7 +179,8 @@ def _lowpass_periodic(x: FloatArray, dt: float, cutoff_hz: float) -> FloatArray:
 
 @dataclass
 class CommissionedController:
-    """Feedforward (exact inverse of the identified rate-dependent P-I) + integral feedback + ILC."""
+    """Feedforward (the identified model's inverse) + integral feedback + iterative learning,
+    behind the safe layer (module docstring)."""
 
     plant: Any
     fit: FitResult
@@ -134,6 +190,8 @@ class CommissionedController:
     ilc_cutoff_hz: float | None = None
     time_s: float = 0.0
     info: dict[str, Any] = field(default_factory=dict)
+    limits: CommandLimits | None = None
+    max_plays: int = 8
 
     @property
     def model(self) -> Any:
@@ -143,6 +201,17 @@ class CommissionedController:
     def delay(self) -> int:
         return self.fit.delay
 
+    @property
+    def mode(self) -> str:
+        """``"step"`` (a per-sample loop: feedback possible) or ``"buffered"`` (tables only)."""
+        return plant_mode(self.plant)
+
+    def _limits(self) -> CommandLimits:
+        if self.limits is None:
+            rng = plant_u_range(self.plant) or (0.0, 100.0)
+            self.limits = CommandLimits.for_range(rng)
+        return self.limits
+
     def describe(self) -> dict[str, Any]:
         m = self.model
         hold = self.fit.info.get("holdout", {})
@@ -150,9 +219,13 @@ class CommissionedController:
             "model": kind_of(m), "structure": self.fit.info.get("chosen", self.fit.method),
             "fit_rmse_um": self.fit.rmse, "holdout_rmse_um": hold.get("rmse"),
             "holdout_percent_of_span": hold.get("percent_of_span"), "delay_samples": self.delay,
+            "mode": self.mode,
+            "feedback": (f"integral, ki = {self.tuning.ki:.4g} 1/s" if self.tuning else
+                         NO_LOOP if self.mode == "buffered" else "none (not tuned)"),
             "ki": self.tuning.ki if self.tuning else None,
             "ki_ultimate": self.tuning.ki_ultimate if self.tuning else None,
             "learning_gain": self.learning_gain, "commissioning_time_s": self.time_s,
+            "limits": self._limits().to_dict(),
             "warnings": list(self.fit.warnings),
         }
 
@@ -165,113 +238,273 @@ class CommissionedController:
         """1 / the model's mean slope: converts a feedback correction in µm into volts."""
         return float(np.ptp(self.identification.u) / np.ptp(self.identification.y))
 
-    def track(self, reference: Any, *, feedback: bool = True, learning: bool = True,
-              period: int | None = None, label: str = "") -> TrackingResult:
-        """Follow ``reference`` (µm, one sample per ``plant.dt``) from rest.
+    def _rest_output(self, limits: CommandLimits) -> float:
+        """The model's output (µm) at the rest command, from its initial state."""
+        dt = self.plant.dt if self.model.dynamic else None
+        return float(self.model.predict(np.full(2, limits.rest), dt)[-1])
 
-        ``feedback`` switches the integral feedback, ``learning`` the iterative learning (used
-        only when the reference repeats: ``period`` samples, estimated when omitted).
+    def track(self, reference: Any, *, feedback: bool | None = None, learning: bool = True,
+              period: int | None = None, label: str = "", max_plays: int | None = None) -> TrackingResult:
+        """Follow ``reference`` (µm, one sample per ``plant.dt``).
+
+        ``feedback`` switches the integral feedback: None (default) uses it where the plant has a
+        per-sample loop; True on a plant that only plays tables is an error (there is no loop to
+        close). ``learning`` switches the iterative learning: on a per-sample plant it is used when
+        the reference repeats (``period`` samples, estimated when omitted), cycle by cycle; on a
+        buffered plant the whole table is played again, corrected, up to ``max_plays`` times, and
+        the best play is returned (``info["play_rms_um"]`` lists every play).
         """
         r = as_signal("reference", reference, min_length=2)
+        if self.mode == "buffered":
+            if feedback:
+                raise ValueError(NO_LOOP.replace("no feedback: ", "cannot use feedback: "))
+            return self._track_buffered(r, learning=learning, period=period, label=label,
+                                        max_plays=self.max_plays if max_plays is None else int(max_plays))
+        return self._track_step(r, feedback=True if feedback is None else bool(feedback), learning=learning,
+                                period=period, label=label)
+
+    def _cutoff(self, per: int | None, dt: float) -> float:
+        return self.ilc_cutoff_hz or (max(50.0, 15.0 / (per * dt)) if per else 50.0)
+
+    def _track_step(self, r: FloatArray, *, feedback: bool, learning: bool, period: int | None,
+                    label: str) -> TrackingResult:
         plant = self.plant
         dt = plant.dt
+        limits = self._limits()
+        guard = GuardedPlant(plant, limits)
         n = r.size
-        per = period if period is not None else estimate_period(r)
+        per = period if period is not None else reference_period(r)
         learn = learning and per is not None and n >= 2 * per
+        p = int(per) if per is not None else 1  # the period where learning uses it
         ff = self.feedforward()
         pid = self.tuning.pid(dt) if (feedback and self.tuning is not None) else None
         d = self.delay
-        corr = np.zeros(per) if learn else None
+        corr = np.zeros(p) if learn else None
         best_corr = corr
         best_rms = np.inf
         learning_on = learn
         cycle_rms: list[float] = []
         vpu = self.volts_per_um
         span = float(np.ptp(r))
-        watch = LoopWatch(r, u_range=getattr(plant, "u_range", None), feedback_on=pid is not None,
+        watch = LoopWatch(r, u_range=guard.u_range, feedback_on=pid is not None,
                           limit=10 * span + 10, dt=dt, describe=lambda: f"controller {self.describe()}")
-        plant.reset()
+        guard.reset()
+        # lead-in: from rest to the first target, slowly enough for the step limit
+        desired, cmd = lead_in(ff, self._rest_output(limits), r[min(d, n - 1)], limits, dt)
+        guard.ramp_to(float(cmd[0]))
+        ff.reset()
+        y_prev = 0.0
+        for x in desired[:-1]:
+            y_prev = guard.step(ff.step(float(x)))
+        lead_samples = guard.sent
         y = np.empty(n)
         u = np.empty(n)
-        y_prev = 0.0
+        # where the range clipped the command, learning cannot act: no correction builds up there
+        clipped_at = np.zeros(n + d, dtype=bool)
         sat = 0
-        cutoff = self.ilc_cutoff_hz or (max(50.0, 15.0 / (per * dt)) if per else 50.0)
-        for k in range(n):
-            fb = pid.step(r[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
-            j = min(k + d, n - 1)
-            target = r[j] + (corr[j % per] if corr is not None else 0.0)  # type: ignore[index, operator]
-            uk = ff.step(target) + fb
-            sat = watch.command(k, uk)
-            yk = float(plant.step(uk))
-            u[k] = uk
-            y[k] = yk
-            watch.output(k, yk, y)
-            y_prev = yk
-            if learn and (k + 1) % per == 0:
-                c0 = k + 1 - per
-                e = r[c0:k + 1] - y[c0:k + 1]
-                rms = float(np.sqrt(np.mean(e**2)))
-                cycle_rms.append(rms)
-                if learning_on:
-                    if rms < best_rms:
-                        best_rms, best_corr = rms, corr.copy()  # type: ignore[union-attr]
-                        # the error of cycle m shows the correction applied in it; align by phase
-                        corr = _lowpass_periodic(corr + self.learning_gain * np.roll(e, -(c0 % per)), dt, cutoff)  # type: ignore[operator]
-                        if rms > 0.95 * (cycle_rms[-2] if len(cycle_rms) > 1 else np.inf):
+        cutoff = self._cutoff(per, dt)
+        try:
+            for k in range(n):
+                fb = pid.step(r[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
+                j = min(k + d, n - 1)
+                target = r[j] + (corr[j % p] if corr is not None else 0.0)
+                uk = ff.step(target) + fb
+                watch.command(k, uk)
+                yk = guard.step(uk)
+                sat = guard.last_saturation
+                clipped_at[k + d] = sat != 0
+                u[k] = guard.last
+                y[k] = yk
+                watch.output(k, yk, y)
+                y_prev = yk
+                if learn and (k + 1) % p == 0:
+                    c0 = k + 1 - p
+                    e = r[c0:k + 1] - y[c0:k + 1]
+                    rms = float(np.sqrt(np.mean(e**2)))
+                    e = np.where(clipped_at[c0:k + 1], 0.0, e)
+                    cycle_rms.append(rms)
+                    # the first cycle starts from the lead-in, on the virgin branch where the model
+                    # began: its error is a transient (the figures of merit leave it out too), so
+                    # learning starts from the second cycle
+                    if learning_on and len(cycle_rms) > 1:
+                        if rms < best_rms:
+                            best_rms, best_corr = rms, corr.copy()  # type: ignore[union-attr]
+                            # the error of cycle m shows the correction applied in it; align by phase
+                            corr = _lowpass_periodic(corr + self.learning_gain * np.roll(e, -(c0 % p)), dt, cutoff)  # type: ignore[operator]
+                            if len(cycle_rms) > 2 and rms > 0.95 * cycle_rms[-2]:
+                                learning_on = False
+                                corr = best_corr
+                        else:  # the error stopped falling: keep the best correction
                             learning_on = False
                             corr = best_corr
-                    else:  # the error stopped falling: keep the best correction
-                        learning_on = False
-                        corr = best_corr
-        clipped = getattr(plant, "clipped", None)
+        finally:
+            guard.ramp_to(limits.rest)  # leave the stage at rest (a later reset() is then no jump)
         return TrackingResult(t=np.arange(n) * dt, reference=r, output=y, command=u, period=per,
-                              clipped=int(clipped) if clipped is not None else None, label=label,
-                              info={"feedback": feedback, "learning": learn, "cycle_rms_um": cycle_rms})
+                              clipped=guard.clipped, label=label,
+                              info={"mode": "step", "feedback": pid is not None, "learning": learn,
+                                    "cycle_rms_um": cycle_rms, "lead_in_samples": lead_samples,
+                                    "safety": guard.counts()})
+
+    def _track_buffered(self, r: FloatArray, *, learning: bool, period: int | None, label: str,
+                        max_plays: int) -> TrackingResult:
+        if max_plays < 1:
+            raise ValueError(f"max_plays must be >= 1, got {max_plays}")
+        from .signals import cycles_after_first
+
+        plant = self.plant
+        dt = plant.dt
+        limits = self._limits()
+        guard = GuardedPlant(plant, limits, last=self.info.get("held_command", limits.rest))
+        n = r.size
+        per = period if period is not None else reference_period(r)
+        folded = per is not None and n >= 2 * per
+        window = cycles_after_first(n, per)
+        d = self.delay
+        idx = np.minimum(np.arange(n) + d, n - 1)
+        ff = self.feedforward()
+        y_rest = self._rest_output(limits)
+        cutoff = self._cutoff(per, dt)
+        corr = np.zeros(n)
+        corr_period = np.zeros(per) if folded else None  # type: ignore[arg-type]
+        plays: list[float] = []
+        best: tuple[float, FloatArray, FloatArray] | None = None
+        for _ in range(max_plays if learning else 1):
+            targets = r[idx] + corr[idx]
+            desired, _c = lead_in(ff, y_rest, float(targets[0]), limits, dt)
+            cmd = ff.command(np.concatenate([desired[:-1], targets]))
+            lead = desired.size - 1
+            pre = limits.ramp(guard.last, min(max(float(cmd[0]), limits.low), limits.high), dt)
+            table = guard.guard_table(np.concatenate([pre, cmd]))
+            y_all = self._play(table)
+            self.info["held_command"] = guard.last
+            y = y_all[pre.size + lead:]
+            e = r - y
+            rms = float(np.sqrt(np.mean(e[window] ** 2)))
+            # where the range clipped the command (it shows d samples later), learning cannot act
+            asked = cmd[lead:]
+            clipped = np.concatenate([np.zeros(d, dtype=bool), (asked < limits.low) | (asked > limits.high)])[:n]
+            e = np.where(clipped, 0.0, e)
+            plays.append(rms)
+            if best is None or rms < best[0]:
+                best = (rms, y, table[pre.size + lead:])
+            else:
+                break  # the error stopped falling: the best play stands
+            if len(plays) > 1 and rms > 0.95 * min(plays[:-1]):
+                break
+            if folded:  # the cycles after the first, phase-aligned, averaged: one period's error
+                p = int(per)  # type: ignore[arg-type]
+                e_per = e[p:(n // p) * p].reshape(-1, p).mean(axis=0)
+                corr_period = _lowpass_periodic(corr_period + self.learning_gain * e_per, dt, cutoff)  # type: ignore[operator]
+                corr = np.resize(corr_period, n)
+            else:
+                corr = _lowpass_periodic(corr + self.learning_gain * e, dt, cutoff)
+        assert best is not None
+        return TrackingResult(t=np.arange(n) * dt, reference=r, output=best[1], command=best[2], period=per,
+                              clipped=guard.clipped, label=label,
+                              info={"mode": "buffered", "feedback": False, "feedback_note": NO_LOOP,
+                                    "learning": bool(learning), "plays": len(plays), "play_rms_um": plays,
+                                    "safety": guard.counts()})
+
+    def _play(self, table: FloatArray) -> FloatArray:
+        from .plant import play_checked
+
+        return play_checked(self.plant, table)
 
 
 def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None = None, n: int | None = None,
-               excitation: Any = None, tune: bool = True, learning_gain: float = 0.5) -> CommissionedController:
-    """Identify ``plant`` and build its controller (module docstring).
+               excitation: Any = None, tune: bool = True, learning_gain: float = 0.5,
+               max_step_fraction: float = MAX_STEP_FRACTION, u_rest: float | None = None,
+               tuning: SafeTuningOptions | None = None, kinds: Sequence[str] = COMMISSION_KINDS,
+               max_plays: int = 8) -> CommissionedController:
+    """Identify ``plant`` and build its controller, safely (module docstring).
 
     Parameters
     ----------
-    plant : Plant
-        ``dt``, ``reset()``, ``step(u) -> y`` (V in, µm out); ``u_range`` and ``excite`` are used
-        when it has them.
+    plant : Plant or BufferedPlant
+        ``dt``, ``reset()``, ``step(u) -> y`` (V in, µm out), or ``dt`` and ``play(table) -> y``;
+        ``u_range`` and ``excite`` are used when it has them.
     seed : int
         Kept for reproducible variants of the experiment; the default experiment is deterministic
         (the plant's own noise is the plant's business).
     u_range : (low, high), optional
-        The amplifier's range, V; default the plant's ``u_range``, else (0, 100).
+        The amplifier's range, V; default the plant's ``u_range``, else (0, 100). No command
+        outside it is ever sent.
+    max_step_fraction : float
+        The largest change of the command from one sample to the next, as a fraction of the range
+        (default 0.02: 2 V per sample on 0-100 V). Ramps are as long as it requires at the plant's
+        sample rate.
+    u_rest : float, optional
+        The command the plant holds before commissioning (default 0 V, or the nearest end of a
+        range without 0): the first ramp starts there. A per-sample plant is at it after ``reset()``.
     excitation : array_like, optional
-        Your own identification command instead of :func:`commissioning_excitation`.
+        Your own identification command instead of :func:`commissioning_excitation`; refused if it
+        leaves the range or changes faster than the step limit (from ``u_rest``).
+    tune : bool
+        Tune integral feedback (plants with a per-sample loop only).
+    tuning : SafeTuningOptions, optional
+        Margins and experiment limits of the feedback tuning.
     n : int, optional
         Fix the P-I operators / Preisach levels (default: chosen on held-out data).
+    kinds : sequence of str
+        The model kinds to choose from.
+    max_plays : int
+        On a buffered plant, the most plays learning uses per ``track``.
+
+    Returns
+    -------
+    CommissionedController
+        ``info["safety"]`` holds the limits and what the safe layer counted (commands sent,
+        clipped, slowed; the largest step sent).
     """
     t0 = time.perf_counter()
-    dt = getattr(plant, "dt", None)
-    if not isinstance(dt, (int, float)) or not dt > 0:
-        raise TypeError("plant must follow the Plant protocol: a positive float 'dt', reset() and step(u)")
-    rng_u = u_range if u_range is not None else tuple(getattr(plant, "u_range", (0.0, 100.0)))
-    if not rng_u[0] < rng_u[1]:
-        raise ValueError(f"u_range must be (low, high) with low < high, got {rng_u}")
+    dt = check_plant(plant)
+    mode = plant_mode(plant)
+    rng_u = plant_u_range(plant, u_range) or (0.0, 100.0)
+    limits = CommandLimits.for_range(rng_u, max_step_fraction=max_step_fraction, rest=u_rest)
+    n_id = None
     if excitation is None:
-        cmd = commissioning_excitation(dt, rng_u)  # type: ignore[arg-type]
-        n_id = identification_length(dt, rng_u)  # type: ignore[arg-type]
+        cmd = commissioning_excitation(dt, rng_u, max_step_fraction=max_step_fraction, start=limits.rest)
+        n_id = identification_length(dt, rng_u, max_step_fraction=max_step_fraction, start=limits.rest)
     else:
-        cmd = as_signal("excitation", excitation)
-        n_id = None
-    ds = open_loop(plant, cmd)
+        cmd = as_signal("excitation", excitation, min_length=50)
+        chk = check_table(cmd, limits, start=limits.rest)
+        if chk["outside"] or chk["largest_step_V"] > limits.max_step:
+            raise ValueError(
+                f"the excitation is not safe to send: {chk['outside']} command(s) outside {limits.low:g}.."
+                f"{limits.high:g} V, largest step {chk['largest_step_V']:.4g} V (limit {limits.max_step:.4g} V "
+                f"per sample, max_step_fraction={max_step_fraction:g}, from the rest command {limits.rest:g} V); "
+                "ramp it or change the limits")
+    guard = GuardedPlant(plant, limits)
+    if mode == "step":
+        guard.reset()
+        if hasattr(plant, "excite"):  # compiled whole run (the VirtualRig), the same commands
+            sent = guard.guard_table(cmd)
+            ds = plant.excite(sent)
+        else:
+            y = guard.play(cmd)
+            ds = Dataset(np.arange(cmd.size, dtype=np.float64) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "step"})
+    else:
+        y = guard.play(cmd)
+        ds = Dataset(np.arange(cmd.size, dtype=np.float64) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "play"})
+    ident_counts = guard.counts()
     if n_id is not None:
         # fit on the identification part, choose on the rest; the winner is refitted on all of it
-        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=COMMISSION_KINDS, n=n, holdout=int(ds.u.size - n_id))
+        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, holdout=int(ds.u.size - n_id))
     else:
-        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=COMMISSION_KINDS, n=n)
-    ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain)
-    if tune:
+        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n)
+    ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain,
+                                 limits=limits, max_plays=max_plays)
+    tune_counts = None
+    if mode == "buffered":
+        ctl.info["held_command"] = guard.last
+        ctl.info["feedback"] = NO_LOOP
+    elif tune:
         level = float(np.median(ds.y))
-        ctl.tuning = tune_integral_feedback(plant, ctl.feedforward(), level=level, feedback_at="command",
-                                            output_scale=ctl.volts_per_um)
+        tguard = GuardedPlant(plant, limits)
+        ctl.tuning = tune_integral_safely(tguard, ctl.feedforward(), ctl.model, delay=ctl.delay, level=level,
+                                          volts_per_um=ctl.volts_per_um, options=tuning)
+        tune_counts = tguard.counts()
     ctl.time_s = time.perf_counter() - t0
     ctl.info["seed"] = seed
+    ctl.info["safety"] = {"limits": limits.to_dict(), "identification": ident_counts, "tuning": tune_counts}
     return ctl

@@ -1,24 +1,51 @@
-"""What a plant is: the protocol every closed loop, commissioning and identification run talks to.
+"""What a plant is: the protocols every closed loop, commissioning and identification run talks to,
+and the safe layer between them and the stage.
 
 A plant is the stage as the software sees it, real or simulated: commands in volts, measured
-displacement in micrometres, one sample every ``dt`` seconds. The :class:`~piezohyst.rig.VirtualRig`
-is one; a user's hardware adapter with the same three members is another, and works everywhere
-the rig does.
+displacement in micrometres, one sample every ``dt`` seconds. There are two ways a stage is driven:
+
+* :class:`Plant` - sample by sample, ``reset()`` and ``step(u) -> y``: a real-time loop (the
+  :class:`~piezohyst.rig.VirtualRig`, a hardware adapter with a per-sample callback);
+* :class:`BufferedPlant` - table by table, ``play(u) -> y``: a piezo controller's wave generator
+  and data recorder, or buffered analog output and input on a DAQ card. The whole command table is
+  applied, one value per ``dt``, and the record comes back; the stage's state carries over from
+  one play to the next (there is no ``reset``).
+
+The VirtualRig offers both. :func:`plant_mode` tells which one an object offers (a plant with both
+is driven sample by sample, where feedback is possible). :func:`open_loop` runs an excitation on
+either.
+
+**The safe layer** (:class:`CommandLimits`, :class:`GuardedPlant`). Whatever a controller computes,
+what reaches the stage passes through a guard that knows the amplifier's range and the largest
+change of the command from one sample to the next. A command outside the range is clipped to it,
+a change larger than the limit is cut to it, *before* ``step`` or ``play``; both are counted, so a
+run can say how often the guard had to act (for the excitations and experiments of
+:func:`~piezohyst.commission` it never has to: they are designed inside the limits). The limit is
+relative to the range, ``max_step = max_step_fraction * (high - low)`` volts per sample (default
+2 %: 2 V on a 0-100 V amplifier, 6 V on a +-150 V one), so it means the same at every sample
+rate; ramps (:meth:`GuardedPlant.ramp_to`) take as many samples as that limit requires.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from ._validation import as_signal
+from ._validation import FloatArray, as_scalar, as_signal
 from .data import Dataset
+
+#: Default largest command change per sample, as a fraction of the amplifier's range.
+MAX_STEP_FRACTION = 0.02
+#: Shortest ramp the safe layer plays, seconds (a ramp is never faster than this, whatever dt).
+MIN_RAMP_S = 0.01
 
 
 @runtime_checkable
 class Plant(Protocol):
-    """What ``track`` and ``commission`` need from a plant, real or simulated.
+    """What ``track`` and ``commission`` need from a plant driven sample by sample.
 
     ``dt`` is the sample period in seconds; ``reset()`` brings the plant to rest; ``step(u)``
     applies the command ``u`` (volts) for one sample and returns the measured displacement (µm).
@@ -33,21 +60,252 @@ class Plant(Protocol):
     def step(self, u: float) -> float: ...
 
 
+@runtime_checkable
+class BufferedPlant(Protocol):
+    """What ``track`` and ``commission`` need from a plant that plays command tables.
+
+    ``dt`` is the table's sample period in seconds; ``play(u)`` applies the whole table ``u``
+    (volts, one value per ``dt``) and returns the measured displacement (µm), one value per command,
+    the same length. The plant's state carries over between plays: the first command of a table
+    follows the last command of the previous one. An optional ``u_range = (low, high)`` tells the
+    amplifier's range in volts.
+    """
+
+    dt: float
+
+    def play(self, u: FloatArray) -> FloatArray: ...
+
+
+def plant_mode(plant: Any) -> str:
+    """``"step"`` for a :class:`Plant` (also when it can play tables), ``"buffered"`` for a plant
+    that only plays tables; a TypeError naming both protocols otherwise."""
+    check_plant(plant)
+    if callable(getattr(plant, "step", None)) and callable(getattr(plant, "reset", None)):
+        return "step"
+    return "buffered"
+
+
 def check_plant(plant: Any) -> float:
-    """The plant's ``dt``, or a TypeError that says what the Plant protocol needs."""
+    """The plant's ``dt``, or a TypeError that says what the Plant and BufferedPlant protocols need."""
     dt = getattr(plant, "dt", None)
-    if isinstance(dt, bool) or not isinstance(dt, (int, float, np.floating)) or not dt > 0 or not np.isfinite(dt):
-        raise TypeError("plant must follow the Plant protocol: a positive float 'dt', reset() and step(u)")
-    return float(dt)
+    ok_dt = not isinstance(dt, bool) and isinstance(dt, (int, float, np.floating)) and dt > 0 and np.isfinite(dt)
+    stepper = callable(getattr(plant, "step", None)) and callable(getattr(plant, "reset", None))
+    player = callable(getattr(plant, "play", None))
+    if not ok_dt or not (stepper or player):
+        raise TypeError("plant must follow the Plant protocol (a positive float 'dt', reset() and step(u)) "
+                        "or the BufferedPlant protocol (a positive float 'dt' and play(u_table))")
+    return float(dt)  # type: ignore[arg-type]
+
+
+def plant_u_range(plant: Any, u_range: Any = None) -> tuple[float, float] | None:
+    """``u_range`` if given, else the plant's ``u_range`` attribute, checked; None if neither."""
+    from .models.base import check_u_range
+
+    given = u_range if u_range is not None else getattr(plant, "u_range", None)
+    return check_u_range(given) if given is not None else None
+
+
+def play_checked(plant: Any, u: FloatArray) -> FloatArray:
+    """``plant.play(u)`` with its answer checked: finite, one value per command."""
+    y = np.asarray(plant.play(np.ascontiguousarray(u, dtype=np.float64)), dtype=np.float64).ravel()
+    if y.size != u.size:
+        raise ValueError(f"the plant's play() returned {y.size} values for a table of {u.size} commands")
+    if not np.all(np.isfinite(y)):
+        raise ValueError("the plant's play() returned non-finite measurements")
+    return y
 
 
 def open_loop(plant: Any, u: Any) -> Dataset:
-    """An open-loop run of any Plant from rest: ``plant.excite(u)`` when it has one (compiled for
-    the VirtualRig), else ``reset()`` and one ``step`` per sample."""
+    """An open-loop run of any plant: ``plant.excite(u)`` when it has one (compiled for the
+    VirtualRig, from rest), else ``reset()`` and one ``step`` per sample, else one ``play`` of the
+    whole table (from the buffered plant's present state)."""
     if hasattr(plant, "excite"):
         return plant.excite(u)  # type: ignore[no-any-return]
     dt = check_plant(plant)
     x = as_signal("u", u)
-    plant.reset()
-    y = np.array([float(plant.step(v)) for v in x])
-    return Dataset(np.arange(x.size) * dt, x, y, {"source": type(plant).__name__})
+    if plant_mode(plant) == "step":
+        plant.reset()
+        y = np.array([float(plant.step(v)) for v in x])
+        how = "step"
+    else:
+        y = play_checked(plant, x)
+        how = "play"
+    return Dataset(np.arange(x.size, dtype=np.float64) * dt, x, y, {"source": type(plant).__name__, "driven_by": how})
+
+
+# -- the safe layer ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CommandLimits:
+    """What the safe layer lets through to a stage.
+
+    Parameters
+    ----------
+    low, high : float
+        The amplifier's range, V.
+    max_step : float
+        Largest change of the command from one sample to the next, V.
+    rest : float
+        The command a stage at rest holds (0 V, or the nearest end of a range without 0).
+    """
+
+    low: float
+    high: float
+    max_step: float
+    rest: float
+
+    def __post_init__(self) -> None:
+        lo = as_scalar("low", self.low)
+        hi = as_scalar("high", self.high)
+        if not lo < hi:
+            raise ValueError(f"the command range must have low < high, got ({lo:g}, {hi:g})")
+        step = as_scalar("max_step", self.max_step, positive=True)
+        rest = as_scalar("rest", self.rest)
+        if not lo <= rest <= hi:
+            raise ValueError(f"the rest command {rest:g} V is outside the range {lo:g}..{hi:g} V")
+        object.__setattr__(self, "low", lo)
+        object.__setattr__(self, "high", hi)
+        object.__setattr__(self, "max_step", step)
+        object.__setattr__(self, "rest", rest)
+
+    @classmethod
+    def for_range(cls, u_range: Any, *, max_step_fraction: float = MAX_STEP_FRACTION,
+                  rest: float | None = None) -> "CommandLimits":
+        """Limits for the range ``(low, high)``: ``max_step = max_step_fraction * (high - low)``."""
+        from .models.base import check_u_range
+
+        rng = check_u_range(u_range)
+        if rng is None:
+            raise ValueError("u_range must be (low, high) in volts, got None")
+        frac = as_scalar("max_step_fraction", max_step_fraction, positive=True)
+        if frac > 1:
+            raise ValueError(f"max_step_fraction is a fraction of the range (0 < f <= 1), got {frac}")
+        lo, hi = rng
+        r = min(max(0.0, lo), hi) if rest is None else as_scalar("u_rest", rest)
+        return cls(lo, hi, frac * (hi - lo), r)
+
+    @property
+    def span(self) -> float:
+        return self.high - self.low
+
+    def ramp_length(self, delta: float, dt: float, *, share: float = 0.5) -> int:
+        """Samples of a raised-cosine ramp over ``delta`` volts whose largest step is ``share`` of
+        ``max_step`` (and that lasts at least :data:`MIN_RAMP_S`)."""
+        n = math.ceil(math.pi * abs(delta) / (2.0 * share * self.max_step))
+        return max(n, int(math.ceil(MIN_RAMP_S / dt)), 2) if delta != 0 else 0
+
+    def ramp(self, start: float, end: float, dt: float, *, share: float = 0.5) -> FloatArray:
+        """A raised-cosine ramp from ``start`` (excluded) to ``end`` (included), V."""
+        n = self.ramp_length(end - start, dt, share=share)
+        if n == 0:
+            return np.empty(0)
+        k = np.arange(1, n + 1) / n
+        return start + (end - start) * 0.5 * (1.0 - np.cos(np.pi * k))
+
+    def to_dict(self) -> dict[str, float]:
+        return {"u_low_V": self.low, "u_high_V": self.high, "max_step_V": self.max_step,
+                "max_step_fraction": self.max_step / self.span, "u_rest_V": self.rest}
+
+
+class GuardedPlant:
+    """A plant (either protocol) behind the safe layer (module docstring).
+
+    It offers the protocol of the plant it wraps: ``step``/``reset`` for a :class:`Plant`,
+    ``play`` for a :class:`BufferedPlant`. Every command is clipped to ``limits`` and its change
+    from the previous command cut to ``limits.max_step`` before the plant sees it; ``clipped`` and
+    ``slew_limited`` count what the guard changed (a command beyond the range by less than 1e-9 of
+    it, a rounding at a bound, is clipped but not counted), ``sent`` every command,
+    ``largest_step`` the largest change actually sent, ``last_saturation`` whether the last command
+    asked for was above (+1) or below (-1) the range (for a loop's anti-windup).
+
+    Parameters
+    ----------
+    plant : Plant or BufferedPlant
+    limits : CommandLimits
+    last : float, optional
+        The command the plant holds now (default ``limits.rest``: a plant not driven yet).
+    """
+
+    def __init__(self, plant: Any, limits: CommandLimits, *, last: float | None = None):
+        self.dt = check_plant(plant)
+        self.plant = plant
+        self.mode = plant_mode(plant)
+        self.limits = limits
+        self.last = float(limits.rest if last is None else last)
+        self.clipped = 0
+        self.slew_limited = 0
+        self.sent = 0
+        self.largest_step = 0.0
+        self.last_saturation = 0
+        self._tol = 1e-9 * limits.span
+
+    @property
+    def u_range(self) -> tuple[float, float]:
+        return (self.limits.low, self.limits.high)
+
+    def reset(self) -> None:
+        """Reset the plant (a :class:`Plant`): it is at rest, holding ``limits.rest``."""
+        if self.mode != "step":
+            raise TypeError("a plant that plays tables (BufferedPlant) cannot be reset; it keeps its state")
+        self.plant.reset()
+        self.last = self.limits.rest
+
+    def _guard(self, u: float) -> float:
+        x = float(u)
+        if not math.isfinite(x):
+            raise ValueError(f"the command must be finite, got {u!r}; not sent to the plant")
+        lim = self.limits
+        # clip to the range first: the previous command is inside it, so cutting the step towards
+        # the clipped value keeps the result inside too
+        sat = 1 if x > lim.high else (-1 if x < lim.low else 0)
+        v = min(max(x, lim.low), lim.high)
+        if abs(v - x) > self._tol:  # rounding at a bound (1e-9 of the range) is not counted
+            self.clipped += 1
+        if abs(v - self.last) > lim.max_step:
+            v = min(max(v, self.last - lim.max_step), self.last + lim.max_step)
+            self.slew_limited += 1
+        self.last_saturation = sat
+        self.largest_step = max(self.largest_step, abs(v - self.last))
+        self.last = v
+        self.sent += 1
+        return v
+
+    def guard_table(self, u: Any) -> FloatArray:
+        """The table the guard would send for ``u`` (and its counts updated as if sent)."""
+        x = as_signal("u", u)
+        out = np.empty(x.size)
+        for k in range(x.size):
+            out[k] = self._guard(x[k])
+        return out
+
+    def step(self, u: float) -> float:
+        """Guard ``u`` and apply it for one sample (a :class:`Plant`); the measured µm."""
+        if self.mode != "step":
+            raise TypeError("this plant plays tables (BufferedPlant): it has no per-sample step")
+        return float(self.plant.step(self._guard(u)))
+
+    def play(self, u: Any) -> FloatArray:
+        """Guard the table ``u`` and play it (either protocol: a Plant steps through it)."""
+        sent = self.guard_table(u)
+        if self.mode == "buffered":
+            return play_checked(self.plant, sent)
+        return np.array([float(self.plant.step(v)) for v in sent])
+
+    def ramp_to(self, target: float, *, share: float = 0.5) -> FloatArray:
+        """Move the command smoothly from where it is to ``target`` (clipped to the range): a
+        raised-cosine ramp whose largest step is ``share`` of the limit. Returns the record."""
+        end = min(max(float(target), self.limits.low), self.limits.high)
+        table = self.limits.ramp(self.last, end, self.dt, share=share)
+        return self.play(table) if table.size else np.empty(0)
+
+    def counts(self) -> dict[str, Any]:
+        return {"commands_sent": self.sent, "clipped": self.clipped, "slew_limited": self.slew_limited,
+                "largest_step_V": self.largest_step, **self.limits.to_dict()}
+
+
+def check_table(u: Any, limits: CommandLimits, *, start: float | None = None) -> dict[str, float]:
+    """How a command table sits against ``limits``: commands outside the range and the largest
+    step (from ``start`` when given)."""
+    x = as_signal("u", u)
+    steps = np.abs(np.diff(x if start is None else np.concatenate([[start], x])))
+    return {"outside": int(np.sum((x < limits.low) | (x > limits.high))),
+            "largest_step_V": float(steps.max()) if steps.size else 0.0}

@@ -57,7 +57,7 @@ from ._numba import njit
 from ._validation import FloatArray, as_scalar, as_signal
 from .data import Dataset
 from .models.bouc_wen import bw_h_update, bw_params, mech_step
-from .plant import Plant, open_loop  # noqa: F401  (Plant and open_loop lived here)
+from .plant import BufferedPlant, Plant, open_loop  # noqa: F401  (Plant and open_loop lived here)
 
 
 class ClippingWarning(UserWarning):
@@ -185,7 +185,11 @@ def _rig_run(p: FloatArray, kv_a: FloatArray, kv_g: FloatArray, amp_a: float, st
 
 
 class VirtualRig:
-    """A simulated piezo-stack rig (the paper's Section III-A); follows the :class:`Plant` protocol.
+    """A simulated piezo-stack rig (the paper's Section III-A).
+
+    It follows both plant protocols (:mod:`piezohyst.plant`): :class:`Plant` (``reset()``,
+    ``step(u)``, a per-sample loop) and :class:`BufferedPlant` (``play(table)``, a wave-table
+    controller: the table runs from the rig's present state, which carries over to the next play).
 
     Parameters
     ----------
@@ -264,6 +268,12 @@ class VirtualRig:
         self._n += x.size
         return _rig_run(self._p, self._kv_a, self._kv_g, self._amp_a, self._st, self._line,
                         self._consts, x, noise)
+
+    def play(self, u: Any) -> FloatArray:
+        """The :class:`~piezohyst.plant.BufferedPlant` protocol: apply the command table ``u``
+        (V, one value per ``dt``) from the rig's present state, which carries over to the next
+        play; return the measured displacement, µm (compiled; the same as :meth:`run`)."""
+        return self.run(u)
 
     def excite(self, u: Any, *, reset: bool = True) -> Dataset:
         """An open-loop run from rest: the :class:`Dataset` (t s, u V, y µm) a user would record.

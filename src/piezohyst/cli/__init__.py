@@ -1,6 +1,6 @@
 """The ``piezohyst`` command. Thin: it parses, calls the public API, prints.
 
-One module per command (:mod:`.models`, :mod:`.identify`, :mod:`.compensate`, :mod:`.track`,
+One module per command (:mod:`.models`, :mod:`.identify`, :mod:`.compensate`, :mod:`.export`, :mod:`.track`,
 :mod:`.reproduce`, :mod:`.rig`, :mod:`.benchmark`), each with a ``register(sub, add)`` that
 adds its parser; shared helpers in :mod:`._common`. The arrows run one way: this module imports
 the commands, the commands import ``_common`` and the public API, never this module.
@@ -29,17 +29,18 @@ import threading
 import warnings
 from typing import Any, Callable, Sequence
 
-from . import benchmark, compensate, identify, models, reproduce, rig, track
+from . import benchmark, compensate, export, identify, models, reproduce, rig, track
 from ._common import ArgumentParser, Terminated, UsageError, cli_spelling, is_deliberate, one_line
 
 #: The commands, in the order ``--help`` lists them.
-COMMANDS = (reproduce, identify, compensate, track, rig, models, benchmark)
+COMMANDS = (reproduce, identify, compensate, export, track, rig, models, benchmark)
 
 EXAMPLES = """\
 examples:
   piezohyst reproduce --out results/          the paper's experiment on the virtual rig
   piezohyst identify data.csv --model auto -o model.json
   piezohyst compensate --model model.json --reference ref.csv -o cmd.csv
+  piezohyst export model.json --to c --out firmware/   the compensator as C99
   piezohyst track --method best --freq 1,3,5  commission the virtual rig and track
   piezohyst rig --freq 1,3,5 --out loops/     open-loop loops of the virtual rig (Fig. 2)
   piezohyst models                            the paper's two models and their loops

@@ -1,8 +1,18 @@
-"""``piezohyst compensate``: the command a saved model's compensator gives for a desired trajectory."""
+"""``piezohyst compensate``: the command a saved model's compensator gives for a desired trajectory,
+written as the wave table a controller plays (``.csv``, ``.npy``, ``.mat``, ``.h``; see
+:mod:`piezohyst.export.tables`).
+
+``--periodic`` makes a table that loops without a step (the compensator's periodic steady state);
+``--fs`` puts the table on the controller's rate. Bad input (a non-finite number anywhere in the
+reference file, ``--fs 0``, ``--u-min nan``, ``--u-min >= --u-max``, an extension it cannot write)
+is one line on stderr and exit code 2. The checks of the numeric options are in
+:func:`check_options` here (the shared helpers of ``_common`` are not this command's to change).
+"""
 
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import Any
 
@@ -15,13 +25,30 @@ def compensator_for(model: Any, dt: float | None, **limits: Any) -> Any:
         raise UsageError(f"the {model.kind} model is not invertible: it has no compensator")
     own = getattr(model, "dt", None)
     if model.dynamic and own is not None and dt is not None and abs(own - dt) > 1e-9 * own:
-        raise UsageError(f"the model was identified at {1 / own:g} Hz but the reference is sampled at "
-                         f"{1 / dt:g} Hz; resample the reference to the model's rate")
+        raise UsageError(f"the model was identified at {1 / own:g} Hz (its lags are discretised at that rate) but "
+                         f"the table would be sampled at {1 / dt:g} Hz; give --fs {1 / own:g} to resample the "
+                         "reference to the model's rate, or identify the model at the table's rate")
     return model.compensator(dt if model.dynamic else None, **limits)
 
 
+def check_options(args: argparse.Namespace) -> None:
+    """The numeric options, checked before any file is read (one line each, exit 2)."""
+    lo, hi = args.u_min, args.u_max
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise UsageError(f"--u-min and --u-max must be finite volts, got {lo} and {hi}")
+    if not lo < hi:
+        raise UsageError(f"--u-min ({lo:g}) must be below --u-max ({hi:g})")
+    fs = getattr(args, "fs", None)
+    if fs is not None and not (math.isfinite(fs) and fs > 0):
+        raise UsageError(f"--fs must be a positive, finite sample rate in Hz, got {fs}")
+
+
 def load_reference(path: str, ref_col: Any, t_col: Any, fs: float | None) -> tuple[Any, Any]:
-    """A desired trajectory (µm) from a text/CSV file, with its time vector."""
+    """A desired trajectory (µm) from a text/CSV file, with its time vector.
+
+    Every number in the file must be finite (a NaN or inf anywhere is an error naming the row and
+    column). Without a time column the reference is taken as sampled at ``fs``.
+    """
     import numpy as np
 
     from ..data import DataError, read_table
@@ -30,6 +57,11 @@ def load_reference(path: str, ref_col: Any, t_col: Any, fs: float | None) -> tup
     if not p.exists():
         raise DataError(f"{p}: no such file")
     names, arr, header = read_table(p)
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        row, col = (int(v) for v in np.argwhere(bad)[0])
+        raise DataError(f"{p}: {int(bad.sum())} value(s) are NaN or inf, the first in data row {row + 1}, "
+                        f"column {names[col]!r}")
     low = [n.lower().split("_")[0].split(" ")[0] for n in names]
 
     def pick(given: Any, aliases: tuple[str, ...]) -> int | None:
@@ -56,18 +88,14 @@ def load_reference(path: str, ref_col: Any, t_col: Any, fs: float | None) -> tup
         else:
             raise DataError(f"{p}: cannot tell which column is the desired displacement; give --ref-col")
     ref = arr[:, ir]
-    if not np.all(np.isfinite(ref)):
-        raise DataError(f"{p}: the reference contains NaN or inf")
+    if ref.size < 2:
+        raise DataError(f"{p}: the reference needs at least 2 samples, got {ref.size}")
     if it is not None:
         t = arr[:, it]
     elif fs is not None:
-        if not (fs > 0 and np.isfinite(fs)):
-            raise DataError(f"{p}: --fs must be a positive sample rate in Hz, got {fs}")
         t = np.arange(ref.size) / fs
     else:
         raise DataError(f"{p}: no time column; give --fs")
-    if not np.all(np.isfinite(t)):
-        raise DataError(f"{p}: the time column contains NaN or inf")
     if np.any(np.diff(t) <= 0):
         raise DataError(f"{p}: time must be strictly increasing")
     steps = np.diff(t)
@@ -78,26 +106,45 @@ def load_reference(path: str, ref_col: Any, t_col: Any, fs: float | None) -> tup
 
 
 def cmd_compensate(args: argparse.Namespace) -> int:
+    import hashlib
+
     import numpy as np
 
-    from .._fileio import atomic_write, check_writable, producer
+    from .._fileio import check_writable, producer
+    from ..export.tables import periodic_table, resample_reference, table_format, write_table
     from ..modelio import load_model
 
+    check_options(args)
     lo, hi = args.u_min, args.u_max
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        raise UsageError(f"--u-min and --u-max must be finite volts, got {lo} and {hi}")
-    if not lo < hi:
-        raise UsageError(f"--u-min ({lo:g}) must be below --u-max ({hi:g})")
     out = check_writable(args.output, args.force)
-    if out.suffix.lower() not in (".csv", ".txt"):
-        raise UsageError(f"{out}: the command file is written as CSV; give a .csv (or .txt) name")
+    try:
+        fmt = table_format(out)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     model = load_model(args.model)
+    sha = hashlib.sha256(Path(args.model).read_bytes()).hexdigest()
     t, ref = load_reference(args.reference, args.ref_col, args.t_col, args.fs)
-    dt = float(np.median(np.diff(t))) if t.size > 1 else None
+    dt_ref = float((t[-1] - t[0]) / (t.size - 1))
+    resampled = False
+    if args.fs is not None and abs(1.0 / args.fs - dt_ref) > 1e-9 * dt_ref:
+        t, ref = resample_reference(t, ref, args.fs, periodic=args.periodic)
+        resampled = True
+    dt = 1.0 / args.fs if args.fs is not None else dt_ref
     ff = compensator_for(model, dt, u_range=(lo, hi) if args.clip else None)
-    u = ff.command(ref)
+    periodic_info = None
+    if args.periodic:
+        inner = float(np.max(np.abs(np.diff(ref))))
+        wrap = float(abs(ref[0] - ref[-1]))
+        if wrap > 2.0 * inner + 1e-12 * max(1.0, float(np.max(np.abs(ref)))):
+            raise UsageError(f"the reference does not loop smoothly: it jumps {wrap:.4g} um from its last sample to its "
+                             f"first, while its largest step inside is {inner:.4g} um; give one period (or whole periods)")
+        plain = ff.command(ref)
+        u, periodic_info = periodic_table(ff, ref, tol=1e-6 * (hi - lo))
+        periodic_info["wrap_step_from_rest_V"] = float(abs(plain[0] - plain[-1]))
+    else:
+        u = ff.command(ref)
     if args.clip:
-        n_out = int(ff.limited)
+        n_out = int(periodic_info["limited_samples"]) if periodic_info is not None else int(ff.limited)
     else:
         outside = (u < lo) | (u > hi)
         n_out = int(outside.sum())
@@ -106,36 +153,59 @@ def cmd_compensate(args: argparse.Namespace) -> int:
             raise UsageError(
                 f"the command leaves the amplifier range {lo:g}..{hi:g} V at {n_out} of {u.size} samples "
                 f"(first at t = {t[i]:.6g} s: {u[i]:.4g} V); change the reference or pass --clip")
-
-    def write(tmp):  # type: ignore[no-untyped-def]
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(f"# {producer()}\n# model: {args.model} ({model.kind}); reference: {args.reference}\n")
-            fh.write(f"# units: t in s, x_d in um, u in V; amplifier range {lo:g}..{hi:g} V; clipped samples: {n_out}\n")
-            fh.write("t_s,x_d_um,u_V\n")
-            np.savetxt(fh, np.column_stack([t, ref, u]), delimiter=",", fmt="%.17g")
-
-    atomic_write(out, write, force=args.force)
-    res = {"written": str(out), "samples": int(u.size), "u_min_V": float(u.min()), "u_max_V": float(u.max()),
-           "clipped_samples": n_out, "model_kind": model.kind}
+    n_limited = n_out
+    # three comment lines, as before tables had other formats (readers skip 4 lines: these and the header)
+    comments = [producer(), f"model: {args.model} ({model.kind}); sha256 {sha}; reference: {args.reference}",
+                f"units: t in s, x_d in um, u in V; amplifier range {lo:g}..{hi:g} V; clipped samples: {n_limited}; "
+                f"sample rate {1.0 / dt:.12g} Hz" + (f" (resampled from the reference's {1.0 / dt_ref:.12g} Hz)"
+                                                     if resampled else "")]
+    if periodic_info is not None:
+        comments[2] += (f"; periodic: one cycle of the steady state after {periodic_info['cycles']} cycles, "
+                        f"wrap-around step {periodic_info['wrap_step_V']:.4g} V, largest inner step "
+                        f"{periodic_info['largest_inner_step_V']:.4g} V")
+    write_table(out, t, ref, u, dt=dt, comments=comments, force=args.force,
+                meta={"producer": comments[0], "model_kind": model.kind, "model_sha256": sha,
+                      "u_min_V": lo, "u_max_V": hi})
+    res: dict[str, Any] = {"written": str(out), "format": fmt, "samples": int(u.size), "u_min_V": float(u.min()),
+                           "u_max_V": float(u.max()), "clipped_samples": n_limited, "model_kind": model.kind,
+                           "fs_hz": 1.0 / dt, "resampled": resampled,
+                           "largest_step_V": float(np.max(np.abs(np.diff(u)))) if u.size > 1 else 0.0}
+    if periodic_info is not None:
+        res["periodic"] = periodic_info
     if args.json:
         print_json(res)
     else:
-        console().print(f"wrote {u.size} commands ({u.min():.3f} .. {u.max():.3f} V"
-                        + (f", {n_out} clipped" if n_out else "") + f") to {out}")
+        msg = (f"wrote {u.size} commands ({u.min():.3f} .. {u.max():.3f} V"
+               + (f", {n_limited} clipped" if n_limited else "") + f", {1.0 / dt:g} Hz) to {out}")
+        if periodic_info is not None:
+            msg += (f"\nperiodic steady state after {periodic_info['cycles']} cycles"
+                    + ("" if periodic_info["converged"] else " (NOT converged)")
+                    + f": wrap-around step {periodic_info['wrap_step_V']:.4g} V, largest inner step "
+                    f"{periodic_info['largest_inner_step_V']:.4g} V (from rest the table would wrap with "
+                    f"{periodic_info['wrap_step_from_rest_V']:.4g} V)")
+        console().print(msg)
     return 0
 
 
 def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p = add("compensate", cmd_compensate,
             "Compute the voltage command that makes the modelled actuator follow a desired trajectory "
-            "(offline feedforward, e.g. for a wave-table controller).",
-            "piezohyst compensate --model pi.json --reference ref.csv -o cmd.csv")
+            "(offline feedforward: the wave table a controller plays).",
+            "piezohyst compensate --model pi.json --reference ref.csv --periodic --fs 10000 -o table.h")
     p.add_argument("--model", required=True, help="model file from 'piezohyst identify'")
     p.add_argument("--reference", required=True, help="desired displacement (µm): CSV/text with a t column or --fs")
     p.add_argument("--ref-col", type=lambda v: int(v) if v.isdigit() else v, default=None, help="reference column")
     p.add_argument("--t-col", type=lambda v: int(v) if v.isdigit() else v, default=None, help="time column")
-    p.add_argument("--fs", type=float, default=None, help="sample rate (Hz) if the file has no time column")
-    p.add_argument("-o", "--output", required=True, help="command file to write (CSV: t_s,x_d_um,u_V)")
+    p.add_argument("--fs", type=float, default=None,
+                   help="the table's sample rate, Hz: a reference with a time column is resampled to it (linear "
+                        "interpolation); one without is taken as sampled at it. A model with dynamics runs only "
+                        "at the rate it was identified at (another rate is refused)")
+    p.add_argument("-o", "--output", required=True,
+                   help="table to write, by extension: .csv/.txt (t_s,x_d_um,u_V), .npy (commands, V), "
+                        ".mat (MATLAB), .h (C array with its length and rate)")
+    p.add_argument("--periodic", action="store_true",
+                   help="the reference is one period of a looping table: write one cycle of the compensator's "
+                        "periodic steady state (loops without a step)")
     p.add_argument("--u-min", type=float, default=0.0, help="amplifier's lowest voltage (default 0)")
     p.add_argument("--u-max", type=float, default=100.0, help="amplifier's highest voltage (default 100)")
     p.add_argument("--clip", action="store_true", help="clip commands to the range instead of refusing")

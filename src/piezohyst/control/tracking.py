@@ -1,7 +1,8 @@
 """Closed-loop tracking (the paper's Fig. 5) and its figures of merit (Tables I and II).
 
 ``track`` drives any object that follows the Plant protocol (``dt``, ``reset()``,
-``step(u) -> y``) sample by sample::
+``step(u) -> y``) sample by sample (a plant that only plays tables, the BufferedPlant protocol,
+gets the feedforward's command table in one play, and no feedback)::
 
     e_k   = r_k - y_{k-1}                  (the latest measurement before u_k is chosen)
     fb_k  = PID(e_k)                       (0 without feedback)
@@ -227,6 +228,30 @@ def _describe(feedforward: Any, feedback: Any, feedback_at: str) -> str:
     return ", ".join(parts)
 
 
+def lead_in(feedforward: Any, y_from: float, y_to: float, limits: Any, dt: float, *,
+            share: float = 0.5) -> tuple[FloatArray, FloatArray]:
+    """A desired trajectory from ``y_from`` to ``y_to`` µm (raised cosine, both ends included) whose
+    commands, from the feedforward's initial state, change by at most ``share * limits.max_step``
+    per sample (within the range). Returns (desired µm, commands V); the caller ramps the command
+    from where the plant holds it to the first of them.
+
+    The ramp's length starts at the safe layer's shortest ramp and doubles until the commands,
+    computed offline with ``feedforward.command``, are that smooth (the inverse of an input lag is
+    a lead: a fast ramp in displacement asks for a much faster one in volts).
+    """
+    n = max(int(math.ceil(0.01 / dt)), 2)
+    bound = share * limits.max_step
+    while True:
+        k = np.arange(1, n + 1) / n
+        desired = y_from + (y_to - y_from) * 0.5 * (1.0 - np.cos(np.pi * k))
+        desired = np.concatenate([[y_from], desired])
+        cmd = feedforward.command(desired)
+        steps = np.abs(np.diff(np.clip(cmd, limits.low, limits.high)))
+        if steps.max() <= bound or n > 2**22:
+            return desired, cmd
+        n *= 2
+
+
 def track(
     plant: Any, reference: Any, feedforward: _Stepper | None = None, feedback: Any = None, *,
     feedback_at: str = "reference", period: int | None = None, reset: bool = True,
@@ -236,8 +261,11 @@ def track(
 
     Parameters
     ----------
-    plant : Plant
-        Anything with ``dt``, ``reset()`` and ``step(u) -> y`` (V in, µm out).
+    plant : Plant or BufferedPlant
+        Anything with ``dt``, ``reset()`` and ``step(u) -> y`` (V in, µm out); or a plant that
+        only plays tables (``dt``, ``play(u) -> y``): then the feedforward's command table for the
+        whole reference is played once, from the plant's present state, and there is no feedback
+        (no per-sample loop exists; asking for it is an error).
     reference : array_like
         Desired displacement, µm, one sample per ``plant.dt``.
     feedforward : InversePIFeedforward or BoucWenFeedforward, optional
@@ -264,16 +292,29 @@ def track(
     Returns
     -------
     TrackingResult
+        ``info["mode"]`` says how the plant was driven (``"step"`` or ``"buffered"``).
     """
+    from ..plant import check_plant, plant_mode, play_checked
+
     r = as_signal("reference", reference, min_length=2)
     period = _check_period(period, r.size)
     if divergence_limit is not None:
         divergence_limit = as_scalar("divergence_limit", divergence_limit, positive=True)
-    dt = getattr(plant, "dt", None)
-    if not isinstance(dt, (int, float)) or not dt > 0:
-        raise TypeError("plant must follow the Plant protocol: a positive float 'dt', reset() and step(u)")
+    dt = check_plant(plant)
     if feedback_at not in ("reference", "command"):
         raise ValueError(f"feedback_at must be 'reference' or 'command', got {feedback_at!r}")
+    if plant_mode(plant) == "buffered":
+        if feedback is not None:
+            raise ValueError("this plant only plays tables (BufferedPlant): there is no per-sample loop to "
+                             "close, so no feedback; track with feedforward alone, or commission() it and "
+                             "use learning across plays")
+        if feedforward is None:
+            raise ValueError("a plant that plays tables needs a feedforward to compute its command table")
+        u = feedforward.command(r) if hasattr(feedforward, "command") else _stream(feedforward, r)
+        y = play_checked(plant, u)
+        return TrackingResult(t=np.arange(r.size, dtype=np.float64) * dt, reference=r, output=y, command=u,
+                              period=period if period is not None else estimate_period(r), clipped=None,
+                              label=label, info={"mode": "buffered", "feedback_at": None, "feedback": False})
     if feedback is not None:
         fdt = getattr(feedback, "dt", None)
         if fdt is None or not math.isclose(float(fdt), float(dt), rel_tol=1e-9):
@@ -315,7 +356,13 @@ def track(
     clipped = None
     if clipped0 is not None:
         clipped = int(getattr(plant, "clipped")) - (0 if reset else int(clipped0))
-    return TrackingResult(t=np.arange(n) * dt, reference=r, output=y, command=u,
+    return TrackingResult(t=np.arange(n, dtype=np.float64) * dt, reference=r, output=y, command=u,
                           period=period if period is not None else estimate_period(r),
                           clipped=clipped, label=label,
-                          info={"feedback_at": feedback_at if feedback is not None else None})
+                          info={"mode": "step", "feedback_at": feedback_at if feedback is not None else None,
+                                "feedback": feedback is not None})
+
+
+def _stream(stepper: Any, r: FloatArray) -> FloatArray:
+    stepper.reset()
+    return np.array([float(stepper.step(v)) for v in r])

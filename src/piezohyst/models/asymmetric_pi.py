@@ -222,5 +222,30 @@ class AsymmetricCompensator(Compensator):
     def _command(self, x_d: FloatArray) -> FloatArray:
         return self._inner._command(self.model.output_map.inverse_map(x_d))
 
+    def inverse_parameters(self) -> dict[str, Any]:
+        """``g^-1`` (the output map's knots, coefficients, centre) and the inner model's inverse."""
+        return {"role": "u = inner^-1[g^-1(x_d)], g^-1(y) = y + sum phi_j D_j(y)",
+                "output_map": self.model.output_map.to_dict(), "inner": self._inner.inverse_parameters()}
+
+    def to_c(self, c: Any, prefix: str) -> str:
+        """``g^-1`` (:meth:`OutputMap.inverse_map`, term by term) then the inner inverse, in C99."""
+        om = self.model.output_map
+        inner = self._inner.to_c(c, f"{prefix}_in")
+        lines = []
+        for d, phi, up in zip(om.knots, om.coefficients, om._upper()):
+            t = f"(x - {c.num(float(d))})"
+            dead = f"(({t} > 0.0) ? {t} : 0.0)" if up else f"(({t} < 0.0) ? {t} : 0.0)"
+            lines.append(f"    g += {c.num(float(phi))} * {dead};")
+        fn = c.name(f"{prefix}_step")
+        body = "\n".join(lines)
+        c.function(f"""/* asymmetric P-I: the output map's inverse ({om.knots.size} dead-zone knot(s)), then the inner inverse */
+static double {fn}(double x)
+{{
+    double g = x;
+{body}
+    return {inner}(g);
+}}""")
+        return fn
+
 
 __all__ = ["AsymmetricPI", "OutputMap"]

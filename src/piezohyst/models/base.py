@@ -236,3 +236,16 @@ class Compensator:
 
     def settings(self) -> dict[str, Any]:
         return {"u_range": list(self.u_range) if self.u_range else None, "max_slew": self.max_slew}
+
+    # -- export (piezohyst.export): what the C and MATLAB exporters need from each kind ----------
+    def inverse_parameters(self) -> dict[str, Any]:
+        """The inverse's state-free parameters as plain data (arrays and numbers), for files
+        other tools read (MATLAB). Each kind's compensator says what its inverse is."""
+        return {}
+
+    def to_c(self, c: Any, prefix: str) -> str:
+        """Emit this compensator's inverse (without the output limits, which the exporter adds) as
+        C99 through the emitter ``c`` (:class:`piezohyst.export.c.CEmitter`): constants, static
+        state, its reset, and a function ``static double NAME(double desired_um)``; return NAME.
+        It must compute what :meth:`_step` computes, operation for operation."""
+        raise TypeError(f"{type(self).__name__} has no C implementation (its kind does not provide to_c)")

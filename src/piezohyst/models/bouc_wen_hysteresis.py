@@ -211,6 +211,75 @@ class BoucWenHysteresisInverse:
         self._v = v
         return v
 
+    def inverse_parameters(self) -> dict[str, Any]:
+        """What :func:`_bwh_solve` works with (the inverse is numerical, not a model)."""
+        m = self.model
+        return {"role": "numerical inverse: solve offset + (d1 + kappa) v - h(v) = x_d per sample by bisection",
+                "d1": m.d1, "alpha_d1": m.alpha * m.d1, "beta": m.beta, "gamma": m.gamma, "offset": m.offset,
+                "kappa": self.kappa, "min_slope": self._s, "bisection_steps": BISECTION_STEPS}
+
+    def to_c(self, c: Any, prefix: str) -> str:
+        """:func:`_bwh_solve` and the state update as C99, operation for operation."""
+        from .bouc_wen_inverse import bw_h_update_c
+
+        m = self.model
+        upd = bw_h_update_c(c)
+        vv = c.state_scalar(f"{prefix}_v", 0.0)
+        hh = c.state_scalar(f"{prefix}_h", 0.0)
+        d1x, ad1 = c.num(m.d1 + self.kappa), c.num(m.alpha * m.d1)
+        beta, gamma, off, smin = c.num(m.beta), c.num(m.gamma), c.num(m.offset), c.num(self._s)
+        fn = c.name(f"{prefix}_solve")
+        f = f"{off} + {d1x} * %s - {upd}(h_prev, %s - v_prev, {ad1}, {beta}, {gamma}) - target"
+        c.function(f"""/* Bouc-Wen hysteresis, numerical inverse: bisection ({BISECTION_STEPS} halvings), one secant step */
+static double {fn}(double target)
+{{
+    const double v_prev = {vv};
+    const double h_prev = {hh};
+    const double f0 = {off} + {d1x} * v_prev - h_prev - target;
+    double v;
+    if (f0 == 0.0) {{
+        v = v_prev;
+    }} else {{
+        double a = v_prev;
+        double b = v_prev - f0 / {smin};
+        double fa = f0;
+        double fb = {f % ("b", "b")};
+        int it;
+        int done = 0;
+        if (fa > 0.0) {{
+            double t = a; a = b; b = t;
+            t = fa; fa = fb; fb = t;
+        }}
+        for (it = 0; it < {BISECTION_STEPS}; ++it) {{
+            const double mid = 0.5 * (a + b);
+            const double fm = {f % ("mid", "mid")};
+            if (fm == 0.0) {{
+                v = mid;
+                done = 1;
+                break;
+            }}
+            if (fm < 0.0) {{
+                a = mid; fa = fm;
+            }} else {{
+                b = mid; fb = fm;
+            }}
+        }}
+        if (!done) {{
+            v = 0.5 * (a + b);
+            if (fb != fa) {{
+                const double lo = (b < a) ? b : a;
+                const double hi = (b > a) ? b : a;
+                const double sec = a - fa * (b - a) / (fb - fa);
+                if (sec >= lo && sec <= hi) v = sec;
+            }}
+        }}
+    }}
+    {hh} = {upd}(h_prev, v - v_prev, {ad1}, {beta}, {gamma});
+    {vv} = v;
+    return v;
+}}""")
+        return fn
+
 
 class BoucWenHysteresisCompensator(Compensator):
     """The numerical inverse (module docstring): desired µm in, volts out."""
@@ -225,3 +294,9 @@ class BoucWenHysteresisCompensator(Compensator):
 
     def _step(self, x_d: float) -> float:
         return self._inv.step(x_d)
+
+    def inverse_parameters(self) -> dict[str, Any]:
+        return self._inv.inverse_parameters()
+
+    def to_c(self, c: Any, prefix: str) -> str:
+        return self._inv.to_c(c, prefix)

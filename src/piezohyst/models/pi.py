@@ -309,6 +309,32 @@ class PIStepper:
             raise ValueError(f"u_k must be finite, got {u_k!r}")
         return float(pi_step(x, self._r, self._w, self._z, self._in, self._out))
 
+    def to_c(self, c: Any, prefix: str) -> str:
+        """This stepper as C99 (see :meth:`Compensator.to_c`): :func:`pi_step`, operation for operation."""
+        n = self._r.size
+        r = c.array(f"{prefix}_r", self._r)
+        w = c.array(f"{prefix}_w", self._w)
+        z = c.state_array(f"{prefix}_z", self.model.initial_state)
+        fn = c.name(f"{prefix}_step")
+        c.function(f"""/* Prandtl-Ishlinskii model, eqs. (1)-(3): {n} play operators */
+static double {fn}(double x)
+{{
+    const double xs = x - {c.num(self._in)};
+    double acc = 0.0;
+    int i;
+    for (i = 0; i < {n}; ++i) {{
+        const double lo = xs - {r}[i];
+        const double hi = xs + {r}[i];
+        double zi = {z}[i];
+        zi = (lo > zi) ? lo : zi;
+        zi = (hi < zi) ? hi : zi;
+        {z}[i] = zi;
+        acc += {w}[i] * zi;
+    }}
+    return acc + {c.num(self._out)};
+}}""")
+        return fn
+
 
 class InversePIFeedforward(Compensator):
     """Inverse P-I feedforward: ``u = P^-1[x_d]`` (eqs. 12-15), the compensator of a P-I model.
@@ -346,6 +372,14 @@ class InversePIFeedforward(Compensator):
 
     def _command(self, x_d: FloatArray) -> FloatArray:
         return self.inverse.simulate(x_d)
+
+    def inverse_parameters(self) -> dict[str, Any]:
+        """The inverse P-I model of eqs. (12)-(15) (its ``to_dict``): ``u = P'[x_d]``."""
+        return {"kind": "prandtl-ishlinskii", "role": "inverse model, eqs. (12)-(15): u = P'[x_d]",
+                **self.inverse.to_dict()}
+
+    def to_c(self, c: Any, prefix: str) -> str:
+        return self._stepper.to_c(c, prefix)
 
     def __repr__(self) -> str:
         return f"InversePIFeedforward({self.model!r})"

@@ -376,6 +376,102 @@ class PreisachInverse:
                                        m.weights, self._s, m.offset, BISECTION_STEPS))
         return self._v
 
+    def inverse_parameters(self) -> dict[str, Any]:
+        """What :func:`preisach_solve` works with (the inverse is numerical, not a model)."""
+        m = self.model
+        return {"role": "numerical inverse: solve offset + slope v + sum mu z(v) = x_d per sample by bisection",
+                "alpha": np.array(self._a), "beta": np.array(self._b), "inv_delta": self._inv_d,
+                "mu": np.array(m.weights), "slope": self._s, "offset": m.offset,
+                "initial_state": m.initial_state(), "bisection_steps": BISECTION_STEPS}
+
+    def to_c(self, c: Any, prefix: str) -> str:
+        """:func:`preisach_solve` as C99, operation for operation (see :meth:`Compensator.to_c`)."""
+        m = self.model
+        nh = self._a.size
+        al = c.array(f"{prefix}_alpha", self._a)
+        be = c.array(f"{prefix}_beta", self._b)
+        mu = c.array(f"{prefix}_mu", m.weights)
+        z = c.state_array(f"{prefix}_z", m.initial_state())
+        vv = c.state_scalar(f"{prefix}_v", 0.0)
+        inv_d, slope, off = c.num(self._inv_d), c.num(self._s), c.num(m.offset)
+        ramp = c.helper("ph_ramp", """static double ph_ramp(double x)
+{
+    return (x <= 0.0) ? 0.0 : ((x >= 1.0) ? 1.0 : x);
+}""")
+        value, advance, fn = c.name(f"{prefix}_value"), c.name(f"{prefix}_advance"), c.name(f"{prefix}_solve")
+        body = f"""        const double up = {ramp}((v - {al}[h]) * {inv_d} + 1.0);
+        const double down = {ramp}((v - {be}[h]) * {inv_d});
+        double zh = {z}[h];
+        if (zh < up) zh = up;
+        if (zh > down) zh = down;"""
+        c.function(f"""/* Preisach model on a triangular grid: {nh} hysterons */
+static double {value}(double v)
+{{
+    double acc = 0.0;
+    int h;
+    for (h = 0; h < {nh}; ++h) {{
+{body}
+        acc += {mu}[h] * zh;
+    }}
+    return acc;
+}}
+
+static void {advance}(double v)
+{{
+    int h;
+    for (h = 0; h < {nh}; ++h) {{
+{body}
+        {z}[h] = zh;
+    }}
+}}
+
+/* the numerical inverse: bisection ({BISECTION_STEPS} halvings) and one secant step */
+static double {fn}(double target)
+{{
+    const double v_prev = {vv};
+    const double f0 = {off} + {slope} * v_prev + {value}(v_prev);
+    const double gap = target - f0;
+    double v;
+    if (gap == 0.0) {{
+        v = v_prev;
+    }} else {{
+        double a = v_prev;
+        double b = v_prev + gap / {slope};
+        double fa = f0 - target;
+        double fb = {off} + {slope} * b + {value}(b) - target;
+        int it;
+        if (fa > 0.0) {{
+            double t = a; a = b; b = t;
+            t = fa; fa = fb; fb = t;
+        }}
+        for (it = 0; it < {BISECTION_STEPS}; ++it) {{
+            const double mid = 0.5 * (a + b);
+            const double fm = {off} + {slope} * mid + {value}(mid) - target;
+            if (fm == 0.0) {{
+                a = mid; b = mid; fa = 0.0; fb = 0.0;
+                break;
+            }}
+            if (fm < 0.0) {{
+                a = mid; fa = fm;
+            }} else {{
+                b = mid; fb = fm;
+            }}
+        }}
+        if (fb != fa) {{
+            const double lo = (b < a) ? b : a;
+            const double hi = (b > a) ? b : a;
+            v = a - fa * (b - a) / (fb - fa);
+            if (!(v >= lo && v <= hi)) v = 0.5 * (a + b);
+        }} else {{
+            v = a;
+        }}
+    }}
+    {advance}(v);
+    {vv} = v;
+    return v;
+}}""")
+        return fn
+
 
 class PreisachCompensator(Compensator):
     """The Preisach model's feedforward: its numerical inverse (module docstring)."""
@@ -390,3 +486,9 @@ class PreisachCompensator(Compensator):
 
     def _step(self, x_d: float) -> float:
         return self._inv.step(x_d)
+
+    def inverse_parameters(self) -> dict[str, Any]:
+        return self._inv.inverse_parameters()
+
+    def to_c(self, c: Any, prefix: str) -> str:
+        return self._inv.to_c(c, prefix)

@@ -286,6 +286,47 @@ class RateCompensator(Compensator):
         self._v = v
         return u
 
+    def inverse_parameters(self) -> dict[str, Any]:
+        """The recursion of the module docstring: the static part's inverse with the lags'
+        instantaneous gain ``kappa``, the lag factors and weights, the input-lag factor."""
+        inv = self._inverse
+        static = inv.inverse_parameters() if hasattr(inv, "inverse_parameters") else getattr(inv, "model").to_dict()
+        return {"role": "known = sum c_i a_i s_i; v = S_kappa^-1(x_d - known); s_i = (1 - a_i) v + a_i s_i; "
+                        "u = (v - b v_prev) / (1 - b)",
+                "static_inverse": static, "kappa": self.kappa, "lag_factors": np.array(self.model._a),
+                "lag_weights": np.array(self.model.lag_weights), "input_lag_factor": self._b,
+                "dt": self.model.dt}
+
+    def to_c(self, c: Any, prefix: str) -> str:
+        """:meth:`_step` as C99: the static inverse (its own piece), the lags, the input lag."""
+        m = self.model
+        n = m.taus.size
+        inner = self._inverse.to_c(c, f"{prefix}_s")
+        v = c.state_scalar(f"{prefix}_v", 0.0)
+        b = self._b
+        fn = c.name(f"{prefix}_step")
+        if n:
+            a = c.array(f"{prefix}_a", m._a)
+            w = c.array(f"{prefix}_c", m.lag_weights)
+            st = c.state_array(f"{prefix}_lag", np.zeros(n))
+            known = (f"    for (i = 0; i < {n}; ++i) known += {w}[i] * {a}[i] * {st}[i];\n")
+            update = (f"    for (i = 0; i < {n}; ++i) {st}[i] = (1.0 - {a}[i]) * v + {a}[i] * {st}[i];\n")
+            decl = "    int i;\n"
+        else:
+            known = update = decl = ""
+        lag = "u = v;" if b == 0.0 else f"u = (v - {c.num(b)} * {v}) / (1.0 - {c.num(b)});"
+        c.function(f"""/* rate-dependent inverse: {n} output lag(s), input lag factor b = {b:.17g} */
+static double {fn}(double x)
+{{
+    double known = 0.0;
+    double v, u;
+{decl}{known}    v = {inner}(x - known);
+{update}    {lag}
+    {v} = v;
+    return u;
+}}""")
+        return fn
+
 
 #: The name of the first version.
 RatePIInverse = RateCompensator

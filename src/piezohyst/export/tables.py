@@ -1,0 +1,160 @@
+"""Wave tables: the command a controller's wave generator plays, in the file its tools read.
+
+:func:`write_table` writes what the file's extension says (:data:`TABLE_FORMATS`):
+
+* ``.csv`` / ``.txt`` - text, columns ``t_s,x_d_um,u_V``, ``#`` comment lines saying what wrote it;
+* ``.npy`` - the commands alone, 1-D float64 volts (``numpy.load``);
+* ``.mat`` - MATLAB: ``u_V``, ``x_d_um``, ``t_s`` (columns), ``dt_s``, ``fs_hz``, and what wrote it
+  (``producer``, ``model_kind``, ``model_sha256``), readable with ``load`` and ``scipy.io.loadmat``;
+* ``.h`` - a C header: ``static const double NAME[NAME_LENGTH]`` with ``NAME_LENGTH`` and
+  ``NAME_RATE_HZ`` (``NAME`` from the file name), for a controller's firmware.
+
+:func:`periodic_table` makes a table that loops without a step: the compensator runs the reference
+cycle after cycle, from its initial state, until the hysteresis (and every lag) has reached its
+periodic steady state - two successive cycles' commands agree to ``tol`` volts - and one cycle of
+that steady state is the table. Looped, its wrap-around step is then one of its ordinary steps.
+
+:func:`resample_reference` puts a reference on the controller's table rate (linear interpolation:
+no overshoot between samples). A model with dynamics (lags, the Bouc-Wen mechanics) is discretised
+at the sample period it was identified at, so its compensator only runs at that rate: a table rate
+that differs is refused (``compensate`` says so), never silently converted.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._validation import FloatArray
+
+#: The table files ``write_table`` (and ``piezohyst compensate -o``) write, by extension.
+TABLE_FORMATS = (".csv", ".txt", ".npy", ".mat", ".h")
+
+
+def table_format(path: Any) -> str:
+    """The output format of ``path`` by its extension, or a ValueError listing the formats."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in TABLE_FORMATS:
+        raise ValueError(f"{path}: cannot write a command table as {suffix or 'a file without an extension'!r}; "
+                         f"the formats are {', '.join(TABLE_FORMATS)} (by the file's extension)")
+    return suffix
+
+
+def c_identifier(stem: str) -> str:
+    """A C identifier from a file name's stem."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", stem).strip("_") or "table"
+    return "table_" + name if name[0].isdigit() else name
+
+
+def write_table(path: Any, t: FloatArray, x_d: FloatArray, u: FloatArray, *, dt: float,
+                comments: list[str], meta: dict[str, Any] | None = None, force: bool = False) -> Path:
+    """Write a command table in the format its extension names (module docstring), atomically;
+    an existing file is not overwritten without ``force``."""
+    from .._fileio import atomic_write, check_writable
+
+    out = check_writable(path, force)
+    fmt = table_format(out)
+    t, x_d, u = (np.asarray(a, dtype=np.float64) for a in (t, x_d, u))
+    meta = dict(meta or {})
+
+    if fmt in (".csv", ".txt"):
+        def write(tmp: Path) -> None:
+            with open(tmp, "w", encoding="utf-8") as fh:
+                for line in comments:
+                    fh.write(f"# {line}\n")
+                fh.write("t_s,x_d_um,u_V\n")
+                np.savetxt(fh, np.column_stack([t, x_d, u]), delimiter=",", fmt="%.17g")
+    elif fmt == ".npy":
+        def write(tmp: Path) -> None:
+            with open(tmp, "wb") as fh:
+                np.save(fh, np.ascontiguousarray(u), allow_pickle=False)
+    elif fmt == ".mat":
+        def write(tmp: Path) -> None:
+            from scipy.io import savemat
+
+            doc = {"u_V": u.reshape(-1, 1), "x_d_um": x_d.reshape(-1, 1), "t_s": t.reshape(-1, 1),
+                   "dt_s": float(dt), "fs_hz": 1.0 / float(dt), "comments": "\n".join(comments)}
+            for k, v in meta.items():
+                doc[re.sub(r"[^A-Za-z0-9_]", "_", k)] = "" if v is None else v
+            with open(tmp, "wb") as fh:
+                savemat(fh, doc, do_compression=True, oned_as="column")
+    else:  # ".h"
+        name = c_identifier(out.stem)
+        macro = name.upper()
+
+        def write(tmp: Path) -> None:
+            from .c import c_number
+
+            vals = [c_number(v) for v in u]
+            rows = ",\n    ".join(", ".join(vals[i:i + 4]) for i in range(0, len(vals), 4))
+            text = "/*\n" + "".join(f" * {line}\n" for line in comments) + " */\n"
+            text += (f"#ifndef {macro}_H\n#define {macro}_H\n\n"
+                     f"#define {macro}_LENGTH {u.size}\n#define {macro}_RATE_HZ {c_number(1.0 / dt)}\n\n"
+                     f"/* the command, V, one value per 1/{macro}_RATE_HZ s */\n"
+                     f"static const double {name}[{macro}_LENGTH] = {{\n    {rows}\n}};\n\n#endif /* {macro}_H */\n")
+            tmp.write_text(text, encoding="utf-8")
+
+    return atomic_write(out, write, force=force)
+
+
+def resample_reference(t: FloatArray, x: FloatArray, fs: float, *, periodic: bool = False) -> tuple[FloatArray, FloatArray]:
+    """``x(t)`` on a grid of ``fs`` Hz from ``t[0]`` (linear interpolation).
+
+    Without ``periodic`` the grid ends at ``t[-1]``; with it the reference is one period of
+    ``len(x)`` samples (its duration ``len(x) * dt``) and the grid has ``round(duration * fs)``
+    samples over that period, interpolated across the wrap-around.
+    """
+    if not (math.isfinite(fs) and fs > 0):
+        raise ValueError(f"the table rate must be a positive number of Hz, got {fs}")
+    t = np.asarray(t, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    dt_old = float(np.median(np.diff(t))) if t.size > 1 else 1.0 / fs
+    if periodic:
+        period = x.size * dt_old
+        n = int(round(period * fs))
+        if n < 2:
+            raise ValueError(f"one period ({period:.6g} s) is shorter than two samples at {fs:g} Hz")
+        tn = t[0] + np.arange(n) / fs
+        return tn, np.interp(tn - t[0], t - t[0], x, period=period)
+    n = int(math.floor((t[-1] - t[0]) * fs * (1 + 1e-12))) + 1
+    if n < 2:
+        raise ValueError(f"the reference ({t[-1] - t[0]:.6g} s) is shorter than two samples at {fs:g} Hz")
+    tn = t[0] + np.arange(n) / fs
+    return tn, np.interp(tn, t, x)
+
+
+def periodic_table(compensator: Any, period: FloatArray, *, tol: float, max_samples: int = 5_000_000) -> tuple[FloatArray, dict[str, Any]]:
+    """One cycle of the compensator's periodic steady state for the repeating reference ``period``
+    (module docstring). Returns the table and what it took: ``cycles``, ``converged``, the last
+    cycle-to-cycle change, the wrap-around step and the largest step inside (V)."""
+    x = np.asarray(period, dtype=np.float64)
+    n = x.size
+    compensator.reset()
+    prev = None
+    cycles = 0
+    change = math.inf
+    max_cycles = max(2, max_samples // max(n, 1))
+    cur = np.empty(n)
+    limited = 0
+    while cycles < max_cycles:
+        before = int(getattr(compensator, "limited", 0))
+        for k in range(n):
+            cur[k] = compensator.step(float(x[k]))
+        limited = int(getattr(compensator, "limited", 0)) - before
+        cycles += 1
+        if prev is not None:
+            change = float(np.max(np.abs(cur - prev)))
+            if change <= tol:
+                break
+        prev = cur.copy()
+    compensator.reset()
+    table = cur.copy()
+    inner = float(np.max(np.abs(np.diff(table)))) if n > 1 else 0.0
+    info = {"cycles": cycles, "converged": bool(change <= tol), "last_cycle_change_V": change, "tolerance_V": tol,
+            "wrap_step_V": float(abs(table[0] - table[-1])), "largest_inner_step_V": inner,
+            "limited_samples": limited}
+    return table, info
