@@ -54,3 +54,38 @@ def test_track_with_a_saved_model(tmp_path, capsys):
 def test_track_needs_a_model(capsys):
     assert main(["track", "--freq", "1"]) == 2
     assert "--model" in capsys.readouterr().err
+
+
+def test_track_a_reference_file_of_any_shape_with_its_own_period(tmp_path, capsys):
+    # an AFM raster (slow rise, fast return): the period comes from the file, exactly, so the
+    # scored cycles are whole ones (issue 15: a triangle's estimate used to fail, e_max 9.33 %)
+    t = np.arange(16000) * 1e-4
+    x = 0.3 + 1.8 * np.concatenate([np.linspace(0, 1, 3000), np.linspace(1, 0, 1000)] * 4)
+    ref = tmp_path / "raster.csv"
+    np.savetxt(ref, np.column_stack([t, x]), delimiter=",", header="t,x", comments="")
+    out = tmp_path / "runs.csv"
+    assert main(["track", "--method", "best", "--reference", str(ref), "-o", str(out), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    r = res["results"][0]
+    assert r["evaluated_samples"] == 12000  # cycles 2-4 of 4000 samples
+    assert r["e_max_percent"] < 2.0
+    runs = np.loadtxt(out, delimiter=",", comments="#", skiprows=3)
+    assert runs.shape == (16000, 4) and np.allclose(runs[:, 1], x)
+    # stdin in, stdout out: the file alone on stdout
+    import subprocess
+    import sys
+
+    p = subprocess.run([sys.executable, "-m", "piezohyst", "track", "--model", str(_pi_model_file(tmp_path)),
+                        "--reference", "-", "-o", "-"], input=ref.read_bytes(), capture_output=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.decode().splitlines()
+    assert lines[0].startswith("# piezohyst") and lines[2].startswith("t_ref_s") and len(lines) == 3 + 16000
+    assert b"Tracking" in p.stderr
+
+
+def _pi_model_file(tmp_path):
+    import piezohyst as ph
+
+    rig = ph.VirtualRig(seed=0)
+    ds = rig.excite(ph.sinusoid(1.0, 2, 0.0, 100.0, rig.dt))
+    return ph.save_model(ph.fit_pi(ds).model, tmp_path / "pi.json")

@@ -136,3 +136,15 @@ def test_non_invertible_model_is_refused_by_the_feedforward():
         ph.InversePIFeedforward(bad)
     with pytest.raises(TypeError):
         ph.BoucWenFeedforward(bad)
+
+
+@pytest.mark.parametrize("shape", ["sine", "triangle", "square", "raster"])
+def test_estimate_period_is_exact_for_any_periodic_shape(shape):
+    from piezohyst.signals import estimate_period
+
+    t = np.arange(40000) * 1e-4
+    x = {"sine": np.sin(2 * np.pi * 2.5 * t), "triangle": np.abs((2.5 * t) % 1.0 - 0.5),
+         "square": np.sign(np.sin(2 * np.pi * 2.5 * t) + 1e-9),
+         "raster": np.concatenate([np.linspace(0, 1, 3000), np.linspace(1, 0, 1000)] * 10)}[shape]
+    assert estimate_period(x) == 4000
+    assert estimate_period(ph.sinusoid(1.0, 4, 0.25, 2.25, 1e-4)) == 10000  # was 9916

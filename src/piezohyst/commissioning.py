@@ -147,28 +147,6 @@ def identification_length(dt: float, u_range: tuple[float, float] = (0.0, 100.0)
     return int(_join(_excitation_parts(dt, limits)[0], limits.rest, limits, dt).size)
 
 
-def reference_period(r: FloatArray) -> int | None:
-    """The reference's period in samples: :func:`~piezohyst.signals.estimate_period`'s estimate,
-    refined to the lag (within 3 % of it) where the reference best matches itself shifted.
-
-    The estimate is the first local maximum of the autocorrelation above 0.95, which can sit a
-    little before the true period (measured: 9916 samples for a 1 Hz sinusoid at 10 kHz); learning
-    indexes its correction by the period, so the lag must be the period itself.
-    """
-    p0 = estimate_period(r)
-    if p0 is None:
-        return None
-    x = r - float(np.mean(r))
-    lo, hi = max(2, int(math.floor(0.97 * p0))), min(int(math.ceil(1.03 * p0)), x.size // 2)
-    best, best_err = p0, math.inf
-    for lag in range(lo, hi + 1):
-        d = x[lag:] - x[:-lag]
-        err = float(np.mean(d * d))
-        if err < best_err:
-            best, best_err = lag, err
-    return best
-
-
 def _lowpass_periodic(x: FloatArray, dt: float, cutoff_hz: float) -> FloatArray:
     """Zero-phase low-pass of one period of a periodic signal (FFT, bins above the cut-off removed)."""
     spec = np.fft.rfft(x)
@@ -273,7 +251,7 @@ class CommissionedController:
         limits = self._limits()
         guard = GuardedPlant(plant, limits)
         n = r.size
-        per = period if period is not None else reference_period(r)
+        per = period if period is not None else estimate_period(r)
         learn = learning and per is not None and n >= 2 * per
         p = int(per) if per is not None else 1  # the period where learning uses it
         ff = self.feedforward()
@@ -356,7 +334,7 @@ class CommissionedController:
         limits = self._limits()
         guard = GuardedPlant(plant, limits, last=self.info.get("held_command", limits.rest))
         n = r.size
-        per = period if period is not None else reference_period(r)
+        per = period if period is not None else estimate_period(r)
         folded = per is not None and n >= 2 * per
         window = cycles_after_first(n, per)
         d = self.delay

@@ -77,8 +77,18 @@ def time_vector(n: int, dt: float) -> FloatArray:
 def estimate_period(x: object, *, min_corr: float = 0.95) -> int | None:
     """The fundamental period of a repeating signal, in samples, or None if it does not repeat.
 
-    Uses the normalised autocorrelation of the mean-removed signal: the first lag at which it
-    has a local maximum above ``min_corr``.
+    The normalised autocorrelation of the mean-removed signal finds the first lag at which it
+    has a local maximum above ``min_corr``; that lag is then refined, within 3 % of it, to the
+    lag at which the signal best matches itself shifted (least mean squared difference), since
+    the correlation's first maximum can sit a little early (1 % for a sinusoid of four cycles).
+    Any periodic shape works: sinusoids, triangles (an AFM raster), squares.
+
+    Examples
+    --------
+    >>> import numpy as np, piezohyst as ph
+    >>> t = np.arange(40000) * 1e-4
+    >>> ph.estimate_period(1 + 2 * np.abs((2 * t) % 1.0 - 0.5))   # a 2 Hz triangle at 10 kHz
+    5000
     """
     s = as_signal("x", x)
     min_corr = as_scalar("min_corr", min_corr)
@@ -92,11 +102,31 @@ def estimate_period(x: object, *, min_corr: float = 0.95) -> int | None:
     spec = np.fft.rfft(s, size)
     ac = np.fft.irfft(spec * np.conj(spec), size)[:n]
     # unbiased normalisation, so later lags are not penalised for having fewer terms
+    raw = ac.copy()
     ac = ac / (ac[0] * (n - np.arange(n)) / n)
-    for lag in range(1, n // 2 + 1):
+    # the correlation must first fall (below 1/2) away from lag 0 before it can peak again: near
+    # lag 0 a smooth signal's correlation is flat to rounding and shows spurious local maxima
+    fallen = np.flatnonzero(ac[: n // 2 + 1] < 0.5)
+    if fallen.size == 0:
+        return None
+    for lag in range(int(fallen[0]), n // 2 + 1):
         if ac[lag] >= min_corr and ac[lag] >= ac[lag - 1] and ac[lag] >= ac[lag + 1]:
-            return lag
+            return _refine_period(s, raw, lag)
     return None
+
+
+def _refine_period(s: FloatArray, raw_ac: FloatArray, p0: int) -> int:
+    """The lag within 3 % of ``p0`` minimising ``mean((s[L:] - s[:-L])^2)``, from the raw
+    autocorrelation and cumulative sums of squares (no loop over the record)."""
+    n = s.size
+    lo = max(1, int(np.floor(0.97 * p0)))
+    hi = min(int(np.ceil(1.03 * p0)), n // 2)
+    lags = np.arange(lo, hi + 1)
+    sq = np.concatenate([[0.0], np.cumsum(s * s)])
+    head = sq[n - lags]  # sum of s[:n-L]^2
+    tail = sq[n] - sq[lags]  # sum of s[L:]^2
+    msd = (head + tail - 2.0 * raw_ac[lags]) / (n - lags)
+    return int(lags[int(np.argmin(msd))])
 
 
 def cycles_after_first(n: int, period: int | None) -> slice:

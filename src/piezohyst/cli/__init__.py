@@ -5,7 +5,9 @@ One module per command (:mod:`.models`, :mod:`.identify`, :mod:`.compensate`, :m
 adds its parser; shared helpers in :mod:`._common`. The arrows run one way: this module imports
 the commands, the commands import ``_common`` and the public API, never this module.
 
-Every command that prints figures prints them as JSON instead with ``--json`` (nothing else on
+An input file given as ``-`` is read from stdin, and ``-o -`` writes the output file to stdout
+(the summary then goes to stderr). Every command that prints figures prints them as JSON
+instead with ``--json`` (nothing else on
 stdout). Exit codes:
 
 * 0: done;
@@ -30,7 +32,8 @@ import warnings
 from typing import Any, Callable, Sequence
 
 from . import benchmark, compensate, export, identify, models, reproduce, rig, track
-from ._common import ArgumentParser, Terminated, UsageError, cli_spelling, is_deliberate, one_line
+from ._common import (ArgumentParser, Terminated, UsageError, cli_spelling, is_deliberate, one_line,
+                      run_with_std_streams)
 
 #: The commands, in the order ``--help`` lists them.
 COMMANDS = (reproduce, identify, compensate, export, track, rig, models, benchmark)
@@ -137,10 +140,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         command = args.command
         prog = f"piezohyst {command}"
         if debug:
-            return int(args.func(args))
+            return run_with_std_streams(args, args.func)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            code = int(args.func(args))
+            code = run_with_std_streams(args, args.func)
         seen = set()
         for w in caught:  # after the results, once each, on one line each
             text = one_line(w.message)

@@ -40,6 +40,10 @@ class ArgumentParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {msg} (see '{self.prog} --help')\n")
 
 
+#: True while a command writes its output file to stdout (``-o -``): summaries then go to stderr.
+STDOUT_TAKEN = False
+
+
 def console(stderr: bool = False) -> Any:
     """A rich console; tables stay readable when the output is piped or captured."""
     import shutil
@@ -47,7 +51,51 @@ def console(stderr: bool = False) -> Any:
     from rich.console import Console
 
     width = None if sys.stdout.isatty() else max(shutil.get_terminal_size((140, 24)).columns, 140)
-    return Console(stderr=stderr, highlight=False, markup=False, width=width)
+    return Console(stderr=stderr or STDOUT_TAKEN, highlight=False, markup=False, width=width)
+
+
+#: Arguments that name an input file (``-`` reads it from stdin) and the suffix it is given then.
+STDIN_ARGS = {"data": ".csv", "reference": ".csv", "model": ".json"}
+#: Arguments that name an output file (``-`` writes it to stdout) and the suffix by command.
+STDOUT_SUFFIX = {"identify": ".json", "compensate": ".csv", "track": ".csv"}
+
+
+def run_with_std_streams(args: argparse.Namespace, run: Any) -> int:
+    """Run a command with ``-`` for an input file (stdin) or for ``-o`` (stdout).
+
+    The stream goes through a temporary file (the readers and writers take paths: formats are
+    told by the suffix, which for stdin is text/CSV or, for a model, JSON). With ``-o -`` the
+    command's own summary goes to stderr, so stdout holds the file alone.
+    """
+    import tempfile
+
+    global STDOUT_TAKEN
+    ins = [a for a in STDIN_ARGS if getattr(args, a, None) == "-"]
+    out_dash = getattr(args, "output", None) == "-"
+    if not ins and not out_dash:
+        return int(run(args))
+    if len(ins) > 1:
+        raise UsageError(f"only one input can come from stdin ('-'); got it for {', '.join('--' + a for a in ins)}")
+    if out_dash and getattr(args, "json", False):
+        raise UsageError("-o - writes the file itself to stdout; drop --json, or write the file elsewhere")
+    with tempfile.TemporaryDirectory(prefix="piezohyst-") as tmp:
+        if ins:
+            p = Path(tmp) / ("stdin" + STDIN_ARGS[ins[0]])
+            p.write_bytes(sys.stdin.buffer.read())
+            setattr(args, ins[0], str(p))
+        target = None
+        if out_dash:
+            target = Path(tmp) / ("stdout" + STDOUT_SUFFIX.get(getattr(args, "command", ""), ".csv"))
+            args.output = str(target)
+            STDOUT_TAKEN = True
+        try:
+            code = int(run(args))
+        finally:
+            STDOUT_TAKEN = False
+        if target is not None and code == 0:
+            sys.stdout.buffer.write(target.read_bytes())
+            sys.stdout.flush()
+        return code
 
 
 def print_json(obj: Any) -> None:

@@ -1,5 +1,6 @@
-"""``piezohyst track``: follow sinusoids on the virtual rig with a saved model's compensator (and PID),
-or with piezohyst's own commissioning, and print the paper's figures of merit."""
+"""``piezohyst track``: follow sinusoids, or a reference from a file (any shape), on the virtual rig
+with a saved model's compensator (and PID), or with piezohyst's own commissioning; print the
+paper's figures of merit and, with ``-o``, write the runs."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import argparse
 from typing import Any
 
 from ._common import (UsageError, add_rig_options, check_sinusoids, console, finite_float, freqs, nonnegative_float,
-                      positive_int, print_json, rig_from_args, rig_rate_note)
+                      positive_float, positive_int, print_json, rig_from_args, rig_rate_note)
 from .compensate import compensator_for
 
 
@@ -15,11 +16,13 @@ def _gains(args: argparse.Namespace) -> str:
     return f"--kp {args.kp:g} --ki {args.ki:g} --kd {args.kd:g}"
 
 
-def _unstable(exc: Any, args: argparse.Namespace, f: float, what: str) -> UsageError:
+def _unstable(exc: Any, args: argparse.Namespace, run: str, what: str) -> UsageError:
     """The loop went unstable: one line naming the settings to change (gains, or the reference)."""
     reason = getattr(exc, "reason", None) or str(exc).split(" with ")[0]
-    return UsageError(f"at --freq {f:g} Hz the loop went unstable with {what}: {reason}; lower the gains, or "
-                      f"keep --low {args.low:g} .. --high {args.high:g} um within what the stage can reach")
+    where = f"at --freq {run}" if run.endswith(" Hz") else f"on --reference {run}"
+    keep = (f"keep --low {args.low:g} .. --high {args.high:g} um" if args.reference is None
+            else "keep the reference") + " within what the stage can reach"
+    return UsageError(f"{where} the loop went unstable with {what}: {reason}; lower the gains, or {keep}")
 
 
 def _check_reachable(rig: Any, args: argparse.Namespace) -> None:
@@ -43,12 +46,61 @@ def _check_reachable(rig: Any, args: argparse.Namespace) -> None:
                          f"controller can follow it")
 
 
+def _references(args: argparse.Namespace, rig: Any) -> list[tuple[str, Any, Any]]:
+    """``(label, reference, period)`` per run: the --freq sinusoids, or the --reference file
+    (resampled to the rig's rate when its own differs; its period read off the file itself)."""
+    from ..export.tables import resample_reference
+    from ..signals import estimate_period, sinusoid
+    from .compensate import load_reference
+
+    if args.reference is None:
+        return [(f"{f:g} Hz", sinusoid(f, args.cycles, args.low, args.high, rig.dt), int(round(1 / (f * rig.dt))))
+                for f in args.freq]
+    t, ref = load_reference(args.reference, args.ref_col, args.t_col, args.fs)
+    dt_ref = float((t[-1] - t[0]) / (t.size - 1))
+    if abs(dt_ref - rig.dt) > 1e-9 * rig.dt:
+        t, ref = resample_reference(t, ref, 1.0 / rig.dt, periodic=False)
+    return [(str(args.reference), ref, estimate_period(ref))]
+
+
+def _write_runs(path: str, runs: list[tuple[str, Any]], args: argparse.Namespace) -> str:
+    """The runs as CSV (one t, desired, measured, command group of columns per run)."""
+    import numpy as np
+
+    from .._fileio import atomic_write, producer
+
+    def write(tmp):  # type: ignore[no-untyped-def]
+        n = max(out.t.size for _, out in runs)
+        cols, names = [], []
+        for label, out in runs:
+            tag = label.replace(" ", "") if label.endswith(" Hz") else "ref"
+            names += [f"t_{tag}_s", f"x_d_{tag}_um", f"y_{tag}_um", f"u_{tag}_V"]
+            for arr in (out.t, out.reference, out.output, out.command):
+                c = np.full(n, np.nan)
+                c[: arr.size] = arr
+                cols.append(c)
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(f"# {producer()}\n# units: t in s, desired and measured displacement in um, command in V; "
+                     f"one group of four columns per run\n")
+            fh.write(",".join(names) + "\n")
+            np.savetxt(fh, np.column_stack(cols), delimiter=",", fmt="%.10g")
+
+    return str(atomic_write(path, write, force=args.force))
+
+
 def cmd_track(args: argparse.Namespace) -> int:
+    from .._fileio import check_writable
     from ..control.pid import PID
     from ..control.tracking import UnstableLoopError, track
     from ..modelio import load_model
-    from ..signals import sinusoid
 
+    args.freq_given = args.freq is not None
+    if args.freq is None:
+        args.freq = [1.0, 3.0, 5.0]
+    if args.output:
+        check_writable(args.output, args.force)
+    if args.reference is not None and args.freq_given:
+        raise UsageError("give either --freq (sinusoids) or --reference (a trajectory file), not both")
     if not args.low < args.high:
         raise UsageError(f"--low ({args.low:g} um) must be below --high ({args.high:g} um)")
     if args.cycles < 2:
@@ -63,65 +115,93 @@ def cmd_track(args: argparse.Namespace) -> int:
     if args.method == "model" and not args.model:
         raise UsageError("give --model MODEL.json (or --method best)")
     rig = rig_from_args(args)
-    check_sinusoids(args.freq, args.cycles, rig.dt, rate_from=rig_rate_note(args))
-    _check_reachable(rig, args)
+    if args.reference is None:
+        check_sinusoids(args.freq, args.cycles, rig.dt, rate_from=rig_rate_note(args))
+        _check_reachable(rig, args)
+    refs = _references(args, rig)
+    runs = []
     if args.method == "best":
         from ..commissioning import commission
 
         ctl = commission(rig, seed=args.seed)
         rows = []
-        for f in args.freq:
-            ref = sinusoid(f, args.cycles, args.low, args.high, rig.dt)
+        for label, ref, period in refs:
             try:
-                out = ctl.track(ref, period=int(round(1 / (f * rig.dt))))
+                out = ctl.track(ref, period=period)
             except UnstableLoopError as exc:
-                raise _unstable(exc, args, f, "the commissioned controller") from None
-            rows.append({"freq_hz": f, "method": "best", **out.summary()})
-        return _print_track(args, rows, rig, extra={"controller": ctl.describe()})
+                raise _unstable(exc, args, label, "the commissioned controller") from None
+            runs.append((label, out))
+            rows.append({"run": label, "freq_hz": _freq(label), "method": "best", **out.summary()})
+        written = _write_runs(args.output, runs, args) if args.output else None
+        return _print_track(args, rows, rig, extra={"controller": ctl.describe(), "written": written})
     model = load_model(args.model)
     try:
         ff = compensator_for(model, rig.dt)
     except (ValueError, TypeError) as exc:
         raise UsageError(f"{args.model}: no compensator from this model: {exc}") from None
     rows = []
-    for f in args.freq:
-        ref = sinusoid(f, args.cycles, args.low, args.high, rig.dt)
+    for label, ref, period in refs:
         pid = PID(args.kp, args.ki, args.kd, rig.dt) if args.feedback == "pid" else None
         try:
-            out = track(rig, ref, ff, pid, period=int(round(1 / (f * rig.dt))))
+            out = track(rig, ref, ff, pid, period=period)
         except UnstableLoopError as exc:
             what = f"PID {_gains(args)}" if pid is not None else f"the feedforward of {args.model} alone"
-            raise _unstable(exc, args, f, what) from None
-        rows.append({"freq_hz": f, "method": f"{type(ff).__name__}" + (" + PID" if pid else ""), **out.summary()})
-    return _print_track(args, rows, rig)
+            raise _unstable(exc, args, label, what) from None
+        runs.append((label, out))
+        rows.append({"run": label, "freq_hz": _freq(label), "method": f"{type(ff).__name__}" + (" + PID" if pid else ""),
+                     **out.summary()})
+    written = _write_runs(args.output, runs, args) if args.output else None
+    return _print_track(args, rows, rig, extra={"written": written})
+
+
+def _freq(label: str) -> float | None:
+    return float(label.split()[0]) if label.endswith(" Hz") else None
 
 
 def _print_track(args, rows, rig, extra=None) -> int:  # type: ignore[no-untyped-def]
     if args.json:
-        print_json({"rig": rig.settings.to_dict(), "seed": args.seed, "reference_um": [args.low, args.high],
-                     "results": rows, **(extra or {})})
+        ref = [args.low, args.high] if args.reference is None else args.reference
+        print_json({"rig": rig.settings.to_dict(), "seed": args.seed, "reference": ref,
+                    "reference_um": [args.low, args.high] if args.reference is None else None,
+                    "results": rows, **(extra or {})})
         return 0
     from rich.table import Table
 
-    t = Table(title=f"Tracking on the virtual rig (seed {args.seed}), reference {args.low:g}-{args.high:g} µm")
-    for c in ("freq (Hz)", "method", "e_max (µm)", "e_max % of span", "RMSE (µm)", "RMSE % of span", "clipped"):
-        t.add_column(c, justify="right" if c != "method" else "left")
+    what = f"reference {args.low:g}-{args.high:g} µm" if args.reference is None else f"reference {args.reference}"
+    t = Table(title=f"Tracking on the virtual rig (seed {args.seed}), {what}")
+    for c in ("run", "method", "e_max (µm)", "e_max % of span", "RMSE (µm)", "RMSE % of span", "clipped"):
+        t.add_column(c, justify="right" if c not in ("method", "run") else "left")
     for r in rows:
-        t.add_row(f"{r['freq_hz']:g}", r["method"], f"{r['e_max_um']:.4f}", f"{r['e_max_percent']:.2f}",
+        t.add_row(r["run"], r["method"], f"{r['e_max_um']:.4f}", f"{r['e_max_percent']:.2f}",
                   f"{r['rmse_um']:.4f}", f"{r['rmse_percent']:.2f}", str(r["clipped_samples"]))
-    console().print(t)
+    con = console()
+    con.print(t)
+    if extra and extra.get("written"):
+        con.print(f"wrote the runs to {extra['written']}")
     return 0
 
 
 def register(sub: Any, add: Any) -> None:
     p = add("track", cmd_track,
-            "Track sinusoids on the virtual rig with a saved model's feedforward (and PID), or with "
-            "--method best (piezohyst's own commissioning), and print the paper's figures of merit.",
-            "piezohyst track --model pi.json --freq 1,3,5 --feedback pid --ki 500")
+            "Track sinusoids (or a reference file of any shape) on the virtual rig with a saved model's "
+            "feedforward (and PID), or with --method best (piezohyst's own commissioning), and print the "
+            "paper's figures of merit.",
+            "piezohyst track --model pi.json --freq 1,3,5 --feedback pid --ki 500\n"
+            "  piezohyst track --method best --reference raster.csv -o runs.csv")
     p.add_argument("--model", default=None, help="model file from 'piezohyst identify'")
     p.add_argument("--method", choices=("model", "best"), default="model",
                    help="model: the saved model's feedforward; best: identify on the rig and use everything piezohyst has")
-    p.add_argument("--freq", type=freqs, default=[1.0, 3.0, 5.0], help="frequencies in Hz (default 1,3,5)")
+    p.add_argument("--freq", type=freqs, default=None, help="frequencies in Hz (default 1,3,5)")
+    p.add_argument("--reference", default=None, metavar="FILE",
+                   help="desired displacement (µm) from a CSV/text file ('-': stdin) instead of sinusoids; "
+                   "any shape; its period, if it repeats, is read off the file")
+    p.add_argument("--ref-col", type=lambda v: int(v) if v.isdigit() else v, default=None,
+                   help="reference column of --reference")
+    p.add_argument("--t-col", type=lambda v: int(v) if v.isdigit() else v, default=None,
+                   help="time column of --reference")
+    p.add_argument("--fs", type=positive_float, default=None, help="sample rate (Hz) of --reference if it has no time column")
+    p.add_argument("-o", "--output", default=None, help="write the runs (t, desired, measured, command) as CSV ('-': stdout)")
+    p.add_argument("--force", action="store_true", help="overwrite the --output file")
     p.add_argument("--cycles", type=positive_int, default=4, help="cycles per run, >= 2; the first is not scored (default 4)")
     p.add_argument("--low", type=finite_float, default=0.25, help="lowest desired displacement, µm (default 0.25)")
     p.add_argument("--high", type=finite_float, default=2.25, help="highest desired displacement, µm (default 2.25)")
