@@ -200,13 +200,18 @@ def test_cli_on_a_dask_scheduler_and_worker_started_here(batch, serial, tmp_path
     assert summary["fit_rmse_um"].equals(serial["fit_rmse_um"])
 
 
-def test_resume_skips_done_records_and_checks_they_still_apply(tmp_path):
+def test_resume_skips_done_records_and_checks_they_still_apply(tmp_path, monkeypatch):
     files = write_simulated_batch(tmp_path / "b", 3, seed=3, fs=200.0, cycles=3)
     out = tmp_path / "out"
     first = identify_many(files, client="serial", out=out)
     assert not first["resumed"].any() and (first["status"] == "ok").all()
     stamp = [(out / "models" / f"{f.stem}.json").stat().st_mtime_ns for f in files]
-    again = identify_many(files, client="serial", out=out)
+
+    def no_cluster(*a, **k):
+        raise AssertionError("a cluster was started with nothing to fit")
+
+    monkeypatch.setattr(ph.fleet, "local_cluster", no_cluster)
+    again = identify_many(files, out=out)  # client=None, but every record is done
     assert again["resumed"].all()
     assert [(out / "models" / f"{f.stem}.json").stat().st_mtime_ns for f in files] == stamp  # not rewritten
     cols = ["record", "status", "fit_rmse_um", "loop_width_um", "gain_um_per_v", "elapsed_s"]
@@ -315,6 +320,10 @@ def test_refusals_name_what_is_wrong(tmp_path):
         FitOptions(fs=-1.0)
     with pytest.raises(TypeError, match="client must be"):
         identify_many(f, client=3)
+    with pytest.raises(ValueError, match="workers sizes the local cluster"):
+        identify_many(f, client="serial", workers=2)
+    with pytest.raises(ValueError, match="seed must be an integer >= 0"):
+        FitOptions(seed=-1)
     (tmp_path / "afile").write_text("x", encoding="utf-8")
     with pytest.raises(NotADirectoryError, match="not a folder"):
         identify_many(f, client="serial", out=tmp_path / "afile")

@@ -212,13 +212,12 @@ class FitOptions:
         if method == "lsq" and kind != "prandtl-ishlinskii":
             raise ValueError("method 'lsq' is for kind 'pi'; the other kinds choose their structure on held-out "
                              "data (method 'select', their default)")
-        for name in ("n", "seed", "max_iter"):
+        for name, least in (("n", 1), ("seed", 0), ("max_iter", 1)):
             v = getattr(self, name)
             if v is None and name == "n":
                 continue
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or (v < 1 and name != "seed"):
-                raise ValueError(f"{name} must be a {'non-negative' if name == 'seed' else 'positive'} integer, "
-                                 f"got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < least:
+                raise ValueError(f"{name} must be an integer >= {least}, got {v!r}")
         delay = self.delay
         if delay is None:
             delay = "auto" if method == "select" else 0
@@ -693,6 +692,9 @@ def identify_many(
     if not (isinstance(client, str) or client is None or hasattr(client, "submit")):
         raise TypeError(f"client must be None, 'serial', a scheduler address or a distributed.Client, "
                         f"got {type(client).__name__}")
+    if workers is not None and client is not None:
+        raise ValueError("workers sizes the local cluster made when client is None; with a client or a scheduler, "
+                         "the cluster has the workers it has")
     records = find_records(paths)
     out_dir = Path(out) if out is not None else None
     models_dir = None
@@ -732,8 +734,8 @@ def identify_many(
 
     own = None
     try:
-        if client == "serial":
-            where = "this process (serial)"
+        if client == "serial" or not jobs:  # nothing to fit: no cluster to start
+            where = "this process (serial)" if client == "serial" else "no cluster (every record read back)"
         elif client is None or isinstance(client, str):
             own = local_cluster(workers) if client is None else _connect(client, timeout)
             where = _describe(own)
@@ -742,10 +744,10 @@ def identify_many(
         if models_dir is not None and jobs:
             models_dir.mkdir(parents=True, exist_ok=True)
         with _Progress(progress, len(jobs), where) as bar:
-            if client == "serial":
+            if client == "serial" or not jobs:
                 for name, path in jobs:
                     done(name, identify_record(path, opts, record=name))
-            elif jobs:
+            else:
                 _run_on_client(own if own is not None else client, jobs, opts, done)
     finally:
         if own is not None:
