@@ -102,6 +102,8 @@ def test_local_cluster_two_workers_equals_serial(batch, serial, tmp_path):
         env = client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"), __import__("numba").config.NUMBA_NUM_THREADS))
         assert len(env) == 2 and all(v == ("1", 1) for v in env.values())
         assert all(w["nthreads"] == 1 for w in client.scheduler_info()["workers"].values())
+        ticks = client.run(lambda: __import__("dask").config.get("distributed.admin.tick.interval"))
+        assert set(ticks.values()) == {ph.fleet.LOCAL_CLUSTER_CONFIG["distributed.admin.tick.interval"]}
         seen = []
         df = identify_many(batch["dir"], client=client, out=tmp_path, progress=lambda d, n, row: seen.append((d, n)))
         assert client.status == "running"  # a client we passed is left open
