@@ -591,9 +591,8 @@ def local_cluster(workers: int | None = None, *, dashboard_address: str | None =
     import logging
 
     distributed = _require("distributed")
-    from dask.system import CPU_COUNT
-
     import dask
+    from dask.system import CPU_COUNT
 
     n = CPU_COUNT if workers is None else workers
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
