@@ -11,7 +11,7 @@ OUT    ?= piezohyst-out
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test,bench]"
+	$(PY) -m pip install --quiet -e ".[test,bench,fleet,control,formats]"
 	touch $(STAMP)
 
 setup: $(STAMP)

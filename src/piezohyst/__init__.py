@@ -44,7 +44,8 @@ _LAZY: dict[str, str] = {
     "ClippingWarning": "rig", "RigSettings": "rig", "VirtualRig": "rig",
     "estimate_period": "signals", "sinusoid": "signals",
 }
-_SUBMODULES = ("signals", "models", "identify", "control", "data", "modelio", "plots", "experiments", "export")
+_SUBMODULES = ("signals", "models", "identify", "control", "data", "modelio", "plots", "experiments", "export",
+               "fleet")
 
 __all__ = sorted([*_LAZY, *_SUBMODULES, "__version__"])
 
@@ -65,7 +66,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
-    from . import control, data, experiments, export, identify, modelio, models, plots, signals  # noqa: F401
+    from . import control, data, experiments, export, fleet, identify, modelio, models, plots, signals  # noqa: F401
     from .analysis import LoopFigures, loop_figures  # noqa: F401
     from .commissioning import CommissionedController, commission  # noqa: F401
     from .control import (BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult,  # noqa: F401

@@ -1,7 +1,7 @@
 """The ``piezohyst`` command. Thin: it parses, calls the public API, prints.
 
 One module per command (:mod:`.models`, :mod:`.identify`, :mod:`.compensate`, :mod:`.export`, :mod:`.track`,
-:mod:`.reproduce`, :mod:`.rig`, :mod:`.benchmark`), each with a ``register(sub, add)`` that
+:mod:`.reproduce`, :mod:`.rig`, :mod:`.fleet`, :mod:`.benchmark`), each with a ``register(sub, add)`` that
 adds its parser; shared helpers in :mod:`._common`. The arrows run one way: this module imports
 the commands, the commands import ``_common`` and the public API, never this module.
 
@@ -31,12 +31,12 @@ import threading
 import warnings
 from typing import Any, Callable, Sequence
 
-from . import benchmark, compensate, export, identify, models, reproduce, rig, track
+from . import benchmark, compensate, export, fleet, identify, models, reproduce, rig, track
 from ._common import (ArgumentParser, Terminated, UsageError, cli_spelling, is_deliberate, one_line,
                       run_with_std_streams)
 
 #: The commands, in the order ``--help`` lists them.
-COMMANDS = (reproduce, identify, compensate, export, track, rig, models, benchmark)
+COMMANDS = (reproduce, identify, compensate, export, track, rig, models, fleet, benchmark)
 
 EXAMPLES = """\
 examples:
@@ -47,6 +47,7 @@ examples:
   piezohyst track --method best --freq 1,3,5  commission the virtual rig and track
   piezohyst rig --freq 1,3,5 --out loops/     open-loop loops of the virtual rig (Fig. 2)
   piezohyst models                            the paper's two models and their loops
+  piezohyst fleet identify batch/ --model pi --out fleet/   every actuator of a batch, on Dask
 Run 'piezohyst COMMAND --help' for each command's options and an example.
 """
 

@@ -262,13 +262,19 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fs", type=positive_float, default=None, help="sample rate in Hz when the file has no time column")
 
 
-def load_cli_dataset(path: str, args: argparse.Namespace) -> Any:
-    import piezohyst as ph
-
+def data_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The :func:`~piezohyst.load_dataset` keywords given by :func:`add_data_options`' options
+    (for a command that loads its records elsewhere, e.g. on a cluster's workers)."""
     for flag, v in (("--u-col", args.u_col), ("--y-col", args.y_col), ("--t-col", args.t_col)):
         if isinstance(v, int) and v < 0:
             raise UsageError(f"{flag} {v}: columns count from 0")
-    return ph.load_dataset(path, u_col=args.u_col, y_col=args.y_col, t_col=args.t_col, fs=args.fs)
+    return {"u_col": args.u_col, "y_col": args.y_col, "t_col": args.t_col, "fs": args.fs}
+
+
+def load_cli_dataset(path: str, args: argparse.Namespace) -> Any:
+    import piezohyst as ph
+
+    return ph.load_dataset(path, **data_options(args))
 
 
 def add_rig_options(p: argparse.ArgumentParser) -> None:

@@ -1,0 +1,1018 @@
+"""Fleets of actuators: identify every record of a production batch, on Dask, and compare them.
+
+A manufacturer or a lab characterises every actuator of a batch: hundreds to thousands of
+voltage/displacement records, each to be identified, filed and compared with its siblings. This
+module runs one task per record on a Dask cluster (a ``LocalCluster`` on this machine by
+default, or any scheduler you already run) and gathers one table.
+
+* :func:`identify_many` - every record identified (P-I by default), the models written to
+  ``out/models/<record>.json`` and one row per record returned as a ``pandas.DataFrame`` (and
+  written to ``out/summary.csv``, and ``summary.parquet`` when pyarrow is installed);
+* :func:`batch_statistics` - the batch's distributions of gain, loop width and fit error, and
+  the actuators that differ (beyond 5 median absolute deviations);
+* :func:`plot_histograms` - those distributions as histograms, the outliers marked;
+* :func:`identify_record` - the task itself, for one record (what each worker runs);
+* :func:`write_simulated_batch` - a simulated batch to try all this on.
+
+The command line does the same: ``piezohyst fleet identify PATHS... --model pi --out DIR``.
+
+Each row
+--------
+``record`` (the file's name without its suffix, made unique), ``file``, ``status`` (``"ok"`` or
+``"error"``), ``error`` (why a record failed: an unreadable or corrupt file is a row with its
+error, never a failed batch), ``kind``, ``method``, ``n_samples``, ``fs_hz``,
+``delay_samples``, ``fit_rmse_um`` and ``fit_rmse_percent_of_span`` (eq. 9 on the fitting data),
+``holdout_rmse_um`` and ``holdout_percent_of_span`` (the chosen model's error on held-out data,
+``fit.info["holdout"]``, when the kind is chosen by :func:`~piezohyst.fit_model`; empty for
+``kind="pi"`` and ``"bouc-wen"``, which the paper's way fits on the whole record), ``span_um``,
+``gain_um_per_v`` (the mean slope, ``ptp(y) / ptp(u)``), ``loop_width_um`` and
+``loop_width_percent`` (the width of the last whole loop at mid-range,
+:func:`~piezohyst.loop_figures`, when the input is periodic), ``n_warnings`` and ``warnings``
+(the fit's, and any Python warning raised while it ran), ``fit_time_s``, ``elapsed_s`` (load +
+fit + figures, on the worker), ``resumed``, ``model_file``, ``outlier`` and ``outlier_reason``.
+These figures are of the *measured* record (gain, width) and of the fit (errors), so an actuator
+that differs shows in both.
+
+Which fit
+---------
+``kind="pi"`` is :func:`~piezohyst.fit_pi` with the ``piezohyst identify --model pi`` defaults
+(20 play operators, bounded least squares, no delay): the fleet's RMSE of a record is exactly
+``ph.fit_pi(u, y).rmse`` on it. ``kind="bouc-wen"`` is :func:`~piezohyst.fit_bouc_wen` (PSO and
+polish, the paper's). ``"auto"`` and every other kind go through :func:`~piezohyst.fit_model`
+(structure chosen on held-out data). The options (:class:`FitOptions`) are those of
+``piezohyst identify``: ``method``, ``n``, ``seed``, ``max_iter``, ``polish``, ``delay`` and the
+data options ``u_col``, ``y_col``, ``t_col``, ``fs``.
+
+Resuming
+--------
+Records whose model file is already in ``out/models`` are not fitted again (unless ``force``):
+their rows are read back from the model files, which carry them. A model file made with other
+options, or from another version of its data file (its SHA-256), is reported as an error row
+rather than silently reused; ``force`` refits it. ``summary.*`` and the histogram describe the
+latest run and are replaced by it (atomically); model files are never overwritten without
+``force``.
+
+One numba thread per worker
+---------------------------
+Process parallelism and numba's own threads do not mix: :func:`~piezohyst.fit_bouc_wen`
+simulates the whole swarm in a ``prange`` loop that starts one thread per core, so two worker
+processes on two cores would run four busy threads and slow each other down (the issue that
+asked for this module measured it). The local cluster's workers therefore start with
+``NUMBA_NUM_THREADS=1`` (and distributed's own ``OMP_NUM_THREADS=1`` etc. for BLAS), one thread
+each, and every task calls ``numba.set_num_threads(1)`` (per thread), so workers you started
+yourself behave the same. Parallelism comes from the records, which are independent.
+
+Running it on a real cluster
+----------------------------
+No cluster exists where this was written; these are pointers, not tested recipes. Any
+``distributed.Client`` works: pass it as ``client=``, or give the scheduler's address to the
+command (``--scheduler tcp://host:8786``). What every deployment needs:
+
+* the workers run the same Python environment (``pip install "piezohyst[fleet]"``);
+* the data files are readable by the workers *at the same paths* (a shared filesystem, as on
+  most HPC clusters): the workers read the records; the client writes the model files and the
+  summary, so ``out`` only needs to be writable where the command runs;
+* one thread per worker process (``--nthreads 1``), for the reason above; with ``dask worker``
+  set ``NUMBA_NUM_THREADS=1`` in its environment (the tasks also lower it per thread).
+
+By hand: ``dask scheduler`` on one machine, ``dask worker tcp://SCHEDULER:8786 --nthreads 1
+--nworkers N`` on each of the others (https://docs.dask.org/en/stable/deploying-cli.html).
+On SLURM, PBS, SGE or LSF, dask-jobqueue (https://jobqueue.dask.org) starts the workers as batch
+jobs::
+
+    from dask_jobqueue import SLURMCluster          # or PBSCluster, SGECluster, LSFCluster
+    from distributed import Client
+    cluster = SLURMCluster(cores=1, processes=1, memory="2GB", walltime="01:00:00",
+                           job_script_prologue=["export NUMBA_NUM_THREADS=1"])
+    cluster.scale(jobs=50)                          # or cluster.adapt(maximum_jobs=200)
+    df = ph.fleet.identify_many("batch-07/", kind="pi", client=Client(cluster), out="fleet-07")
+
+On Kubernetes, dask-kubernetes' operator (https://kubernetes.dask.org) gives a ``KubeCluster``
+(an image with ``piezohyst[fleet]`` installed, the data on a shared volume), used the same way;
+Dask Gateway (https://gateway.dask.org) and Coiled work alike. The command line takes the
+scheduler's address from any of them (``cluster.scheduler_address``).
+
+Dask and pandas are the optional extra ``piezohyst[fleet]``; ``import piezohyst`` never imports
+them, and :class:`MissingExtraError` says how to install them when they are missing.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import os
+import re
+import time
+import uuid
+import warnings
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: Suffixes of the data files a folder given as a path contributes (what load_dataset reads).
+DATA_SUFFIXES = (".csv", ".txt", ".dat", ".tsv", ".mat", ".npz")
+
+#: The summary's columns, in order (see the module docstring).
+COLUMNS = (
+    "record", "file", "status", "error", "kind", "method", "n_samples", "fs_hz", "delay_samples",
+    "fit_rmse_um", "fit_rmse_percent_of_span", "holdout_rmse_um", "holdout_percent_of_span",
+    "span_um", "gain_um_per_v", "loop_width_um", "loop_width_percent", "n_warnings", "warnings",
+    "fit_time_s", "elapsed_s", "resumed", "model_file", "outlier", "outlier_reason",
+)
+
+#: The batch figures compared between actuators: column -> (label, unit). Loop width and fit
+#: error are taken relative to each actuator's own span, so an actuator with a larger stroke is
+#: not also flagged for a wider loop or a larger error in µm; its gain flags it.
+FIGURES: dict[str, tuple[str, str]] = {
+    "gain_um_per_v": ("gain", "µm/V"),
+    "loop_width_percent": ("loop width", "% of span"),
+    "fit_rmse_percent_of_span": ("fit RMSE", "% of span"),
+}
+
+#: Flag an actuator whose figure is further than this many median absolute deviations from the
+#: batch's median (raw MAD, not scaled to a standard deviation: 5 MADs is about 3.4 sigma of a
+#: normal distribution).
+OUTLIER_MADS = 5.0
+
+_INSTALL = 'pip install "piezohyst[fleet]"  (dask[distributed] and pandas)'
+
+
+class MissingExtraError(ImportError):
+    """Dask or pandas is not installed; the message says how to install the ``fleet`` extra."""
+
+
+def _require(module: str) -> Any:
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise MissingExtraError(f"piezohyst.fleet needs {module.split('.')[0]}, which is not installed "
+                                f"({exc}); install the fleet extra: {_INSTALL}") from None
+
+
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FitOptions:
+    """How each record is read and identified: the options of ``piezohyst identify``.
+
+    Parameters
+    ----------
+    kind : str
+        ``"auto"`` or a kind name or alias (``"pi"``, ``"bouc-wen"``, ``"rate-dependent"``,
+        ``"asymmetric-pi"``, ``"preisach"``); stored as the kind's canonical name.
+    method : {"lsq", "pso", "select"}, optional
+        ``lsq`` (P-I default): :func:`~piezohyst.fit_pi` by least squares; ``pso``: the paper's
+        swarm (``bouc-wen`` default, or P-I); ``select``: :func:`~piezohyst.fit_model` (every
+        other kind, and ``auto``).
+    n : int, optional
+        Play operators (P-I; 20 with ``lsq``/``pso``) or grid levels; default chosen on
+        held-out data with ``select``.
+    seed, max_iter, polish
+        PSO's seed and iterations, and the Bouc-Wen local refinement.
+    delay : int or "auto", optional
+        Samples by which the output lags the input (default ``"auto"`` with ``select``, 0
+        otherwise).
+    u_col, y_col, t_col, fs
+        How to read each file (:func:`~piezohyst.load_dataset`).
+    """
+
+    kind: str = "pi"
+    method: str | None = None
+    n: int | None = None
+    seed: int = 0
+    max_iter: int = 200
+    polish: bool = True
+    delay: int | str | None = None
+    u_col: Any = None
+    y_col: Any = None
+    t_col: Any = None
+    fs: float | None = None
+
+    def __post_init__(self) -> None:
+        from .models.base import kind_class
+
+        kind = self.kind
+        if not isinstance(kind, str):
+            raise TypeError(f"kind must be a string, got {type(kind).__name__}")
+        if kind != "auto":
+            kind = str(kind_class(kind).kind)  # type: ignore[attr-defined]
+        method = self.method
+        if method is None:
+            method = "pso" if kind == "bouc-wen" else "lsq" if kind == "prandtl-ishlinskii" else "select"
+        if method not in ("select", "lsq", "pso"):
+            raise ValueError(f"method must be 'select', 'lsq' or 'pso', got {method!r}")
+        if method == "pso" and kind not in ("bouc-wen", "prandtl-ishlinskii"):
+            raise ValueError(f"method 'pso' is for kind 'pi' or 'bouc-wen' (the paper's); {kind} is fitted "
+                             "by least squares with its structure chosen on held-out data (method 'select')")
+        if method == "lsq" and kind != "prandtl-ishlinskii":
+            raise ValueError("method 'lsq' is for kind 'pi'; the other kinds choose their structure on held-out "
+                             "data (method 'select', their default)")
+        for name, least in (("n", 1), ("seed", 0), ("max_iter", 1)):
+            v = getattr(self, name)
+            if v is None and name == "n":
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < least:
+                raise ValueError(f"{name} must be an integer >= {least}, got {v!r}")
+        delay = self.delay
+        if delay is None:
+            delay = "auto" if method == "select" else 0
+        if isinstance(delay, str):
+            if delay != "auto":
+                raise ValueError(f"delay must be a number of samples >= 0 or 'auto', got {delay!r}")
+            if method == "pso" and kind == "bouc-wen":
+                raise ValueError("delay 'auto' is not available for kind 'bouc-wen' with method 'pso'; "
+                                 "give the delay in samples")
+        elif isinstance(delay, bool) or not isinstance(delay, (int, np.integer)) or delay < 0:
+            raise ValueError(f"delay must be a number of samples >= 0 or 'auto', got {delay!r}")
+        if self.fs is not None and not (isinstance(self.fs, (int, float)) and np.isfinite(self.fs) and self.fs > 0):
+            raise ValueError(f"fs must be a positive sample rate in Hz, got {self.fs!r}")
+        object.__setattr__(self, "kind", kind)
+        object.__setattr__(self, "method", method)
+        object.__setattr__(self, "delay", delay if isinstance(delay, str) else int(delay))
+
+    def data_options(self) -> dict[str, Any]:
+        """The keyword arguments of :func:`~piezohyst.load_dataset`."""
+        return {"u_col": self.u_col, "y_col": self.y_col, "t_col": self.t_col, "fs": self.fs}
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def fit_record(ds: Any, options: FitOptions | None = None) -> Any:
+    """Identify one :class:`~piezohyst.data.Dataset` as ``piezohyst identify`` would.
+
+    ``kind="pi"`` with ``method="lsq"`` (the default) is ``fit_pi(ds.u, ds.y, n=20)``, i.e.
+    exactly ``ph.fit_pi(ds.u, ds.y)``.
+    """
+    from .identify import fit_bouc_wen, fit_model, fit_pi
+
+    o = options or FitOptions()
+    if o.kind == "bouc-wen" and o.method == "pso":
+        return fit_bouc_wen(ds.u, ds.y, ds.dt, seed=o.seed, delay=o.delay, max_iter=o.max_iter,  # type: ignore[arg-type]
+                            polish=o.polish)
+    if o.kind == "prandtl-ishlinskii" and o.method in ("lsq", "pso"):
+        return fit_pi(ds.u, ds.y, n=o.n or 20, method=o.method, seed=o.seed, delay=o.delay,  # type: ignore[arg-type]
+                      max_iter=o.max_iter)
+    return fit_model(ds.u, ds.y, ds.dt, o.kind, delay=o.delay, n=o.n, seed=o.seed,  # type: ignore[arg-type]
+                     bouc_wen_options={"max_iter": o.max_iter, "polish": o.polish})
+
+
+# ------------------------------------------------------------------------------------------------
+def find_records(paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -> list[tuple[str, Path]]:
+    """The records named by ``paths``: ``(record name, file)`` pairs, in the order given.
+
+    Each path is a file (taken as it is), a folder (its data files, :data:`DATA_SUFFIXES`, not
+    recursing: give ``"folder/**/*.csv"`` for that) or a glob pattern. Record names are the
+    file names without suffix, with characters other than letters, digits, ``.``, ``_`` and ``-``
+    replaced by ``_``; two files with the same name get their folders prefixed (``lot1__a001``).
+
+    Raises
+    ------
+    FileNotFoundError
+        A path that is neither a file nor a folder and matches nothing.
+    ValueError
+        No records at all, or a folder without data files.
+    """
+    items = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
+    if not items:
+        raise ValueError("paths is empty: give data files, folders or glob patterns")
+    files: list[Path] = []
+    seen: set[Path] = set()
+
+    def add(p: Path) -> None:
+        key = p.resolve()
+        if key not in seen:
+            seen.add(key)
+            files.append(p)
+
+    for item in items:
+        if not isinstance(item, (str, os.PathLike)):
+            raise TypeError(f"paths must be file names, folders or glob patterns, got {type(item).__name__}")
+        text = os.fspath(item)
+        p = Path(text)
+        if p.is_dir():
+            found = _folder_records(p)
+            if not found:
+                raise ValueError(f"{p}: no data files ({', '.join(DATA_SUFFIXES)}) in this folder")
+            for f in found:
+                add(f)
+        elif p.is_file():
+            add(p)
+        elif glob.has_magic(text):
+            matches = sorted(glob.glob(text, recursive=True))
+            if not matches:
+                raise FileNotFoundError(f"{text}: no file matches this pattern")
+            for m in matches:
+                mp = Path(m)
+                if mp.is_dir():
+                    for f in _folder_records(mp):
+                        add(f)
+                elif mp.is_file():
+                    add(mp)
+        else:
+            raise FileNotFoundError(f"{text}: no such file or folder")
+    if not files:
+        raise ValueError(f"no data files found in {[os.fspath(i) for i in items]}")
+    return list(zip(_record_names(files), files))
+
+
+def _folder_records(folder: Path) -> list[Path]:
+    return sorted(f for f in folder.iterdir()
+                  if f.is_file() and not f.name.startswith(".") and f.suffix.lower() in DATA_SUFFIXES)
+
+
+def _safe(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).lstrip("._") or "record"
+
+
+def _record_names(files: Sequence[Path]) -> list[str]:
+    """Unique, file-system-safe names: the stem, or more of the path where names collide.
+
+    A colliding name takes one more folder in front (``lot1__a001``), then the suffix too
+    (``a001_csv``), until it is unique (ignoring case, for case-insensitive file systems).
+    """
+    from collections import Counter
+
+    parts = [f.resolve().parts[:-1] for f in files]
+    deepest = max(len(p) for p in parts)
+    levels = [(d, False) for d in range(deepest + 1)] + [(d, True) for d in range(deepest + 1)]
+
+    def name(i: int, level: int) -> str:
+        depth, suffix = levels[level]
+        f = files[i]
+        stem = f.stem + ("_" + f.suffix.lstrip(".") if suffix and f.suffix else "")
+        return _safe("__".join([*parts[i][len(parts[i]) - depth:], stem] if depth else [stem]))
+
+    level = [0] * len(files)
+    while True:
+        names = [name(i, lv) for i, lv in enumerate(level)]
+        count = Counter(n.lower() for n in names)
+        clash = [i for i, n in enumerate(names) if count[n.lower()] > 1]
+        if not clash:
+            return names
+        if any(level[i] == len(levels) - 1 for i in clash):
+            raise ValueError(f"could not give the records unique names ({names[clash[0]]!r} twice); rename the files")
+        for i in clash:
+            level[i] += 1
+
+
+# ------------------------------------------------------------------------------------------------
+def _empty_row(record: str, path: str, options: FitOptions) -> dict[str, Any]:
+    row: dict[str, Any] = dict.fromkeys(COLUMNS, float("nan"))
+    row.update(record=record, file=path, status="error", error="", kind=options.kind, method=options.method,
+               n_samples=0, delay_samples=0, n_warnings=0, warnings="", resumed=False, model_file="",
+               outlier=False, outlier_reason="")
+    return row
+
+
+def _one_numba_thread() -> None:
+    """This thread's numba parallel regions run on one thread (see the module docstring)."""
+    import numba
+
+    if numba.get_num_threads() != 1:
+        numba.set_num_threads(1)
+
+
+def _loop_row(u: Any, y: Any) -> tuple[dict[str, Any], list[str]]:
+    from .analysis import loop_figures
+    from .signals import estimate_period
+
+    span = float(np.ptp(y))
+    out: dict[str, Any] = {"span_um": span, "gain_um_per_v": span / float(np.ptp(u))}
+    notes = []
+    period = estimate_period(u)
+    if period is None:
+        notes.append("the input is not periodic: no loop width")
+    else:
+        try:
+            lf = loop_figures(u, y, period=period)
+            out.update(loop_width_um=lf.width, loop_width_percent=lf.width_percent)
+        except ValueError as exc:
+            notes.append(f"no loop width: {exc}")
+    return out, notes
+
+
+def identify_record(path: str | os.PathLike[str], options: FitOptions | None = None, *,
+                    record: str | None = None, single_thread: bool = False) -> dict[str, Any]:
+    """Load one record, identify it and measure its loop: what each task of the fleet runs.
+
+    Never raises for a bad record: a file that cannot be read or fitted gives a row with
+    ``status="error"`` and the reason in ``error``.
+
+    Parameters
+    ----------
+    path : path
+        The data file (read with :func:`~piezohyst.load_dataset` and ``options``' data options).
+    options : FitOptions, optional
+        Default: ``FitOptions()`` (P-I by least squares).
+    record : str, optional
+        The record's name in the row (default: the file's stem).
+    single_thread : bool
+        Run numba's parallel regions on one thread (on a cluster's workers).
+
+    Returns
+    -------
+    dict
+        ``{"row": {...}, "document": model file document or None}``; the document (what
+        :func:`~piezohyst.save_model` writes) carries the row and the options in
+        ``extra["fleet"]``.
+    """
+    from ._fileio import to_jsonable
+    from .data import load_dataset
+    from .modelio import model_to_dict
+
+    t0 = time.perf_counter()
+    opts = options or FitOptions()
+    p = os.fspath(path)
+    row = _empty_row(record or _safe(Path(p).stem), p, opts)
+    doc = None
+    try:
+        if single_thread:
+            _one_numba_thread()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            ds = load_dataset(p, **opts.data_options())
+            fit = fit_record(ds, opts)
+            loop, notes = _loop_row(ds.u, ds.y)
+        span = loop["span_um"]
+        hold = fit.info.get("holdout") or {}
+        said = list(fit.warnings) + [f"{w.category.__name__}: {w.message}" for w in caught] + notes
+        row.update(loop)
+        row.update(status="ok", kind=fit.model.kind, method=fit.method, n_samples=len(ds), fs_hz=ds.fs,
+                   delay_samples=int(fit.delay), fit_rmse_um=float(fit.rmse),
+                   fit_rmse_percent_of_span=100.0 * float(fit.rmse) / span if span > 0 else float("nan"),
+                   holdout_rmse_um=float(hold["rmse"]) if hold.get("rmse") is not None else float("nan"),
+                   holdout_percent_of_span=(float(hold["percent_of_span"]) if hold.get("percent_of_span")
+                                            is not None else float("nan")),
+                   n_warnings=len(said), warnings=" | ".join(said), fit_time_s=float(fit.time_s))
+        doc = model_to_dict(fit.model, fit=fit, dataset=ds)
+    except Exception as exc:  # noqa: BLE001 - one bad record is a row, never a failed batch
+        row.update(status="error", error=f"{type(exc).__name__}: {exc}")
+    row["elapsed_s"] = time.perf_counter() - t0
+    if doc is not None:
+        doc["extra"] = to_jsonable({"fleet": {"row": row, "options": opts.to_dict()}})
+    return {"row": row, "document": doc}
+
+
+# ------------------------------------------------------------------------------------------------
+def _file_sha256(path: Path) -> str | None:
+    try:
+        h = hashlib.sha256()
+        with open(path, "rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+        return h.hexdigest()
+    except OSError:
+        return None  # not readable here (only on the workers): not checked
+
+
+def _option_changes(before: Any, now: FitOptions) -> str:
+    """What differs between the options a model file records and this run's ("" if nothing)."""
+    now_d = json.loads(json.dumps(now.to_dict()))
+    if not isinstance(before, dict):
+        return "no options recorded"
+    diff = [f"{k} {before.get(k)!r} there, {v!r} now" for k, v in now_d.items() if before.get(k) != v]
+    return "; ".join(diff)
+
+
+def _resumed_row(model_path: Path, record: str, path: Path, opts: FitOptions) -> tuple[dict[str, Any], str]:
+    """The row of a record whose model file exists, read back from that file (checked), and
+    how the options it was made with differ from ``opts`` ("" when they do not)."""
+    from .modelio import MAX_FILE_BYTES, schema_version
+
+    row = _empty_row(record, str(path), opts)
+    row.update(resumed=True, model_file=str(model_path))
+    redo = "; pass force=True (--force) to refit it"
+    try:
+        if model_path.stat().st_size > MAX_FILE_BYTES:
+            raise ValueError(f"larger than {MAX_FILE_BYTES} bytes")
+        doc = json.loads(model_path.read_text(encoding="utf-8"))
+        schema_version(doc, str(model_path))
+    except (OSError, ValueError, RecursionError) as exc:
+        row["error"] = f"cannot read the existing model file {model_path} ({exc}){redo}"
+        return row, ""
+    fleet = doc["extra"].get("fleet") if isinstance(doc.get("extra"), dict) else None
+    if not isinstance(fleet, dict) or not isinstance(fleet.get("row"), dict):
+        row["error"] = f"{model_path} exists but was not written by piezohyst fleet{redo}"
+        return row, ""
+    changes = _option_changes(fleet.get("options"), opts)
+    if changes:
+        row["error"] = f"{model_path} was identified with other options ({changes}){redo}"
+        return row, changes
+    recorded = (doc.get("data") or {}).get("source_sha256")
+    now = _file_sha256(path)
+    if recorded and now and recorded != now:
+        row["error"] = f"{path} changed since {model_path} was identified from it (its SHA-256 differs){redo}"
+        return row, ""
+    for k, v in fleet["row"].items():
+        if k in row and k not in ("record", "file", "resumed", "model_file", "outlier", "outlier_reason"):
+            row[k] = float("nan") if v is None and isinstance(row[k], float) else v
+    return row, ""
+
+
+def _write_model(doc: dict[str, Any], path: Path, force: bool) -> Path:
+    """Write a model document as :func:`~piezohyst.save_model` does (atomic; refuses to overwrite)."""
+    from ._fileio import atomic_write_text, producer
+
+    doc = dict(doc)
+    doc["producer"] = producer()  # the client's command line, not the worker's
+    return atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False) + "\n", force=force)
+
+
+class _Progress:
+    """A rich progress bar on stderr (or a user's callback, or nothing)."""
+
+    def __init__(self, progress: Any, total: int, where: str) -> None:
+        self.callback = progress if callable(progress) else None
+        self.bar = None
+        self.done = 0
+        self.total = total
+        self.failed = 0
+        if progress is True:
+            from rich.console import Console
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+
+            self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                TextColumn("{task.fields[failed]} failed"), TimeElapsedColumn(),
+                                TimeRemainingColumn(), console=Console(stderr=True), transient=False)
+            self.task = self.bar.add_task(f"identifying on {where}", total=total, failed=0)
+
+    def __enter__(self) -> _Progress:  # noqa: PYI034
+        if self.bar is not None:
+            self.bar.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+    def advance(self, row: dict[str, Any]) -> None:
+        self.done += 1
+        self.failed += row["status"] != "ok"
+        if self.bar is not None:
+            self.bar.update(self.task, advance=1, failed=self.failed)
+        if self.callback is not None:
+            self.callback(self.done, self.total, row)
+
+
+#: Dask settings of the local cluster: its servers' periodic diagnostics run less often. With
+#: distributed's defaults (event-loop tick every 20 ms, system monitor every 0.5 s, the nanny
+#: polling worker memory every 0.1 s) an idle 2-worker cluster used 1.3 CPU-seconds per 5 s
+#: (a quarter of a core, taken from the fits on a 2-core machine); with these, 0.4 (measured
+#: here, same method). The tick only detects blocked event loops and the system monitor feeds the
+#: dashboard (off by default); a runaway worker's memory is still checked twice a second.
+LOCAL_CLUSTER_CONFIG = {
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+    "distributed.worker.memory.monitor-interval": "500ms",
+}
+
+
+def local_cluster(workers: int | None = None, *, dashboard_address: str | None = None) -> Any:
+    """A ``distributed.Client`` on a new ``LocalCluster``: ``workers`` processes (default: the
+    cores) of one thread each, on the loopback interface, started with ``NUMBA_NUM_THREADS=1``
+    and :data:`LOCAL_CLUSTER_CONFIG`.
+
+    Close it with ``client.close(); client.cluster.close()`` (or use it in a ``with`` block and
+    close the cluster after).
+    """
+    import logging
+
+    distributed = _require("distributed")
+    import dask
+    from dask.system import CPU_COUNT
+
+    n = CPU_COUNT if workers is None else workers
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    with dask.config.set(LOCAL_CLUSTER_CONFIG):  # read by the servers as they start; the nannies pass it on
+        cluster = distributed.LocalCluster(
+            n_workers=int(n), threads_per_worker=1, processes=True, host="127.0.0.1",
+            dashboard_address=dashboard_address, silence_logs=logging.ERROR,
+            env={"NUMBA_NUM_THREADS": "1"})
+    try:
+        return distributed.Client(cluster)
+    except BaseException:
+        cluster.close()
+        raise
+
+
+def _connect(address: str, timeout: float) -> Any:
+    distributed = _require("distributed")
+    try:
+        return distributed.Client(address, timeout=timeout)
+    except ValueError as exc:
+        raise ValueError(f"{address!r} is not a Dask scheduler address such as tcp://host:8786 ({exc})") from None
+    except (OSError, TimeoutError) as exc:
+        raise ConnectionError(f"cannot reach the Dask scheduler at {address} within {timeout:g} s "
+                              f"({type(exc).__name__}: {exc})") from None
+
+
+def _describe(client: Any) -> str:
+    try:
+        info = client.scheduler_info()
+        n = len(info.get("workers", {}))
+        return f"{n} Dask worker{'s' if n != 1 else ''} ({info.get('address', '?')})"
+    except Exception:  # noqa: BLE001  # pragma: no cover - only a description
+        return "a Dask cluster"
+
+
+def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
+                   done: Callable[[str, dict[str, Any]], None]) -> None:
+    from distributed import as_completed
+
+    token = uuid.uuid4().hex[:8]
+    futures = {client.submit(identify_record, str(path), opts, record=name, single_thread=True, pure=False,
+                             key=f"piezohyst-fleet-{token}-{i}-{name}"): (name, path)
+               for i, (name, path) in enumerate(jobs)}
+    try:
+        for fut in as_completed(list(futures)):
+            name, path = futures.pop(fut)
+            try:
+                res = fut.result()
+            except Exception as exc:  # noqa: BLE001 - the worker died (KilledWorker), was cancelled, ...
+                row = _empty_row(name, str(path), opts)
+                row["error"] = f"the task failed on the cluster: {type(exc).__name__}: {exc}"
+                res = {"row": row, "document": None}
+            fut.release()
+            done(name, res)
+    finally:
+        if futures:  # interrupted: do not leave the scheduler running the rest
+            client.cancel(list(futures))
+
+
+def identify_many(
+    paths: Any, *, kind: str = "pi", client: Any = None, out: str | os.PathLike[str] | None = None,
+    force: bool = False, workers: int | None = None, progress: bool | Callable[..., Any] = False,
+    outlier_mads: float = OUTLIER_MADS, timeout: float = 30.0, **options: Any,
+) -> Any:
+    """Identify every record of a batch, one Dask task per record; one row per record.
+
+    Parameters
+    ----------
+    paths : path, glob or sequence of them
+        Data files, folders (their data files) or glob patterns (:func:`find_records`).
+    kind : str
+        ``"pi"`` (``ph.fit_pi``), ``"bouc-wen"`` (``ph.fit_bouc_wen``), ``"auto"`` or any other
+        kind (``ph.fit_model``); see the module docstring.
+    client : None, "serial", str or distributed.Client
+        ``None``: a ``LocalCluster`` (``workers`` processes, one thread each) made and closed for
+        this call; ``"serial"``: no Dask, a loop in this process; a scheduler address
+        (``"tcp://host:8786"``); or your own ``distributed.Client`` (left open).
+    out : path, optional
+        Folder for ``models/<record>.json`` and ``summary.csv`` (+ ``.parquet`` with pyarrow).
+        Records whose model file is already there are not fitted again (see Resuming).
+    force : bool
+        Refit and overwrite existing model files.
+    workers : int, optional
+        Workers of the local cluster (default: the cores).
+    progress : bool or callable
+        ``True``: a progress bar on stderr; a callable is called as ``progress(done, total, row)``
+        after each record.
+    outlier_mads : float
+        Flag actuators further than this many MADs from the median (:func:`batch_statistics`).
+    timeout : float
+        Seconds to wait for the scheduler when ``client`` is an address.
+    **options
+        :class:`FitOptions` (``method``, ``n``, ``seed``, ``max_iter``, ``polish``, ``delay``,
+        ``u_col``, ``y_col``, ``t_col``, ``fs``).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per record, in the order of ``paths``, with the columns :data:`COLUMNS`.
+
+    Examples
+    --------
+    >>> df = ph.fleet.identify_many("batch/", kind="pi", out="fleet-out")      # doctest: +SKIP
+    >>> df[df.outlier][["record", "gain_um_per_v", "outlier_reason"]]          # doctest: +SKIP
+    """
+    pd = _require("pandas")
+    unknown = sorted(set(options) - {f.name for f in fields(FitOptions)} - {"kind"})
+    if unknown or "kind" in options:
+        raise TypeError(f"identify_many() got unknown option(s) {unknown or ['kind (twice)']}; the options are "
+                        f"{[f.name for f in fields(FitOptions) if f.name != 'kind']}")
+    opts = FitOptions(kind=kind, **options)
+    if not (isinstance(client, str) or client is None or hasattr(client, "submit")):
+        raise TypeError(f"client must be None, 'serial', a scheduler address or a distributed.Client, "
+                        f"got {type(client).__name__}")
+    if workers is not None and client is not None:
+        raise ValueError("workers sizes the local cluster made when client is None; with a client or a scheduler, "
+                         "the cluster has the workers it has")
+    records = find_records(paths)
+    out_dir = Path(out) if out is not None else None
+    models_dir = None
+    if out_dir is not None:
+        if out_dir.exists() and not out_dir.is_dir():
+            raise NotADirectoryError(f"{out_dir}: exists and is not a folder (out must be a folder)")
+        models_dir = out_dir / "models"
+        inside = out_dir.resolve()
+        records = [(n, p) for n, p in records if inside not in p.resolve().parents]  # not our own summary
+        if not records:
+            raise ValueError(f"every file in paths is inside out={out_dir}; nothing to identify")
+    rows: dict[str, dict[str, Any]] = {}
+    jobs: list[tuple[str, Path]] = []
+    stale = []
+    for name, path in records:
+        mp = models_dir / f"{name}.json" if models_dir is not None else None
+        if mp is not None and mp.exists() and not force:
+            rows[name], changes = _resumed_row(mp, name, path, opts)
+            if changes:
+                stale.append((mp, changes))
+        else:
+            jobs.append((name, path))
+    if stale:  # one mistake, one message (not a thousand error rows)
+        raise ValueError(f"{models_dir} holds {len(stale)} model file(s) identified with other options than this "
+                         f"run's ({stale[0][0].name}: {stale[0][1]}); give another out folder, or force=True "
+                         "(--force) to refit them")
+
+    def done(name: str, res: dict[str, Any]) -> None:
+        row = res["row"]
+        if res["document"] is not None and models_dir is not None:
+            try:
+                row["model_file"] = str(_write_model(res["document"], models_dir / f"{name}.json", force))
+            except OSError as exc:
+                row.update(status="error", error=f"fitted, but the model file could not be written: {exc}")
+        rows[name] = row
+        bar.advance(row)
+
+    own = None
+    try:
+        if client == "serial" or not jobs:  # nothing to fit: no cluster to start
+            where = "this process (serial)" if client == "serial" else "no cluster (every record read back)"
+        elif client is None or isinstance(client, str):
+            own = local_cluster(workers) if client is None else _connect(client, timeout)
+            where = _describe(own)
+        else:
+            where = _describe(client)
+        if models_dir is not None and jobs:
+            models_dir.mkdir(parents=True, exist_ok=True)
+        with _Progress(progress, len(jobs), where) as bar:
+            if client == "serial" or not jobs:
+                for name, path in jobs:
+                    done(name, identify_record(path, opts, record=name))
+            else:
+                _run_on_client(own if own is not None else client, jobs, opts, done)
+    finally:
+        if own is not None:
+            cluster = own.cluster if client is None else None
+            own.close()
+            if cluster is not None:
+                cluster.close()
+    df = pd.DataFrame.from_records([rows[n] for n, _ in records], columns=list(COLUMNS))
+    df = batch_statistics(df, threshold=outlier_mads).table
+    if out_dir is not None:
+        write_summary(df, out_dir)
+    return df
+
+
+def write_summary(df: Any, out: str | os.PathLike[str]) -> list[Path]:
+    """Write ``out/summary.csv`` (and ``summary.parquet`` when pyarrow is installed), atomically,
+    replacing the previous run's. Returns the files written."""
+    import importlib.util
+
+    from ._fileio import atomic_write
+
+    out_dir = Path(out)
+    written = [atomic_write(out_dir / "summary.csv", lambda tmp: df.to_csv(tmp, index=False), force=True)]
+    if importlib.util.find_spec("pyarrow") is not None:
+        written.append(atomic_write(out_dir / "summary.parquet", lambda tmp: df.to_parquet(tmp, index=False),
+                                    force=True))
+    return written
+
+
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BatchStatistics:
+    """The distributions of a batch's figures and its outliers (from :func:`batch_statistics`).
+
+    Attributes
+    ----------
+    distributions : pandas.DataFrame
+        One row per figure (:data:`FIGURES`): ``label``, ``unit``, ``n``, ``median``, ``mad``,
+        ``q05``, ``q25``, ``q75``, ``q95``, ``min``, ``max`` over the records that were identified.
+    table : pandas.DataFrame
+        The input rows with ``outlier`` (bool) and ``outlier_reason`` set.
+    threshold : float
+        Median absolute deviations beyond which a record is flagged.
+    """
+
+    distributions: Any
+    table: Any
+    threshold: float = OUTLIER_MADS
+    values: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def outliers(self) -> Any:
+        """The flagged rows."""
+        return self.table[self.table["outlier"]]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (JSON-ready): the distributions and the outliers with their reasons."""
+        dist = {name: {k: (v.item() if hasattr(v, "item") else v) for k, v in r.items()}
+                for name, r in self.distributions.to_dict(orient="index").items()}
+        return {"threshold_mads": self.threshold, "distributions": dist,
+                "outliers": [{"record": r, "reason": why} for r, why in
+                             zip(self.outliers["record"], self.outliers["outlier_reason"])]}
+
+    def plot(self, *, ax: Any = None, bins: Any = "auto") -> dict[str, dict[str, Any]]:
+        """:func:`plot_histograms` of these statistics."""
+        return plot_histograms(self, ax=ax, bins=bins)
+
+
+def batch_statistics(df: Any, *, threshold: float = OUTLIER_MADS) -> BatchStatistics:
+    """Distributions of gain, loop width and fit error over a batch, and its outliers.
+
+    For each figure of :data:`FIGURES`, over the rows with ``status == "ok"`` and a finite
+    value: the median, the median absolute deviation ``MAD = median(|x - median|)`` and
+    quantiles. A record is an outlier when one of its figures lies more than ``threshold`` MADs
+    from the median (when more than half of the batch shares one value, MAD is 0 and any record
+    that differs from it is flagged); the reason names each figure, its value and how far out it
+    is. Records that failed are not flagged (their ``error`` says why).
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        Rows as :func:`identify_many` returns them (at least ``record``, ``status`` and the
+        figures' columns).
+    threshold : float
+        In median absolute deviations (default 5).
+
+    Returns
+    -------
+    BatchStatistics
+    """
+    pd = _require("pandas")
+    if not (isinstance(threshold, (int, float)) and np.isfinite(threshold) and threshold > 0):
+        raise ValueError(f"threshold must be a positive number of MADs, got {threshold!r}")
+    missing = [c for c in ("record", "status", *FIGURES) if c not in df.columns]
+    if missing:
+        raise ValueError(f"df lacks the column(s) {missing}; give the table identify_many returns")
+    table = df.copy()
+    ok = (table["status"] == "ok").to_numpy()
+    reasons: list[list[str]] = [[] for _ in range(len(table))]
+    dist = {}
+    values = {}
+    for col, (label, unit) in FIGURES.items():
+        x = pd.to_numeric(table[col], errors="coerce").to_numpy(dtype=float)
+        use = ok & np.isfinite(x)
+        v = x[use]
+        values[col] = v
+        if v.size == 0:
+            dist[col] = {"label": label, "unit": unit, "n": 0, **dict.fromkeys(
+                ("median", "mad", "q05", "q25", "q75", "q95", "min", "max"), float("nan"))}
+            continue
+        med = float(np.median(v))
+        mad = float(np.median(np.abs(v - med)))
+        q = np.quantile(v, [0.05, 0.25, 0.75, 0.95])
+        dist[col] = {"label": label, "unit": unit, "n": int(v.size), "median": med, "mad": mad,
+                     "q05": float(q[0]), "q25": float(q[1]), "q75": float(q[2]), "q95": float(q[3]),
+                     "min": float(v.min()), "max": float(v.max())}
+        if v.size < 3:
+            continue  # no batch to differ from
+        for i in np.flatnonzero(use):
+            d = abs(x[i] - med)
+            where = "above" if x[i] > med else "below"
+            if mad > 0 and d > threshold * mad:
+                reasons[i].append(f"{label} {x[i]:.4g} {unit} is {d / mad:.1f} MADs {where} the batch median "
+                                  f"{med:.4g}")
+            elif mad == 0 and not np.isclose(x[i], med, rtol=1e-9, atol=0.0):
+                reasons[i].append(f"{label} {x[i]:.4g} {unit} differs from the median {med:.4g} that most of "
+                                  "the batch shares exactly")
+    table["outlier"] = [bool(r) for r in reasons]
+    table["outlier_reason"] = ["; ".join(r) for r in reasons]
+    distributions = pd.DataFrame.from_dict(dist, orient="index")
+    return BatchStatistics(distributions=distributions, table=table, threshold=float(threshold), values=values)
+
+
+def plot_histograms(stats: BatchStatistics | Any, *, ax: Any = None, bins: Any = "auto") -> dict[str, dict[str, Any]]:
+    """Histograms of the batch's gain, loop width and fit error, outliers marked.
+
+    Parameters
+    ----------
+    stats : BatchStatistics or pandas.DataFrame
+        Statistics, or a table to compute them from.
+    ax : sequence of 3 matplotlib Axes, optional
+        One per figure of :data:`FIGURES`; a new figure when omitted.
+    bins
+        As ``numpy.histogram``.
+
+    Returns
+    -------
+    dict
+        Per figure: ``{"ax", "patches", "median", "limits", "outliers"}`` (what was drawn; ``None``
+        where there was nothing to draw).
+    """
+    if not isinstance(stats, BatchStatistics):
+        stats = batch_statistics(stats)
+    if ax is None:
+        import matplotlib.pyplot as plt
+
+        _, ax = plt.subplots(1, len(FIGURES), figsize=(4.2 * len(FIGURES), 3.6), layout="constrained")
+    axes = list(np.ravel(np.asarray(ax, dtype=object)))
+    if len(axes) != len(FIGURES):
+        raise ValueError(f"ax must hold {len(FIGURES)} Axes (one per figure: {list(FIGURES)}), got {len(axes)}")
+    drawn: dict[str, dict[str, Any]] = {}
+    ok = (stats.table["status"] == "ok").to_numpy()
+    flagged = stats.table["outlier"].to_numpy(dtype=bool)
+    for a, (col, (label, unit)) in zip(axes, FIGURES.items()):
+        v = stats.values.get(col, np.array([]))
+        d = stats.distributions.loc[col]
+        entry: dict[str, Any] = {"ax": a, "patches": None, "median": None, "limits": [], "outliers": None}
+        a.set_xlabel(f"{label} ({unit})")
+        a.set_ylabel("actuators")
+        if v.size == 0:
+            a.text(0.5, 0.5, "no identified records", ha="center", va="center", transform=a.transAxes)
+            drawn[col] = entry
+            continue
+        _, _, entry["patches"] = a.hist(v, bins=bins, color="C0", alpha=0.8)
+        entry["median"] = a.axvline(d["median"], color="k", lw=1.2, label=f"median {d['median']:.4g}")
+        if d["mad"] > 0:
+            for s in (-1, 1):
+                entry["limits"].append(a.axvline(d["median"] + s * stats.threshold * d["mad"], color="C3", ls="--",
+                                                 lw=1.0, label=f"±{stats.threshold:g} MAD" if s > 0 else None))
+        x = _numeric(stats.table[col])
+        out = ok & flagged & np.isfinite(x)
+        if out.any():
+            entry["outliers"] = a.plot(x[out], np.zeros(int(out.sum())), "v", color="C3", ms=8, clip_on=False,
+                                       label="flagged actuator")[0]
+        a.set_title(f"{label}: n = {int(d['n'])}", fontsize=10)
+        a.grid(True, alpha=0.3)
+        a.legend(fontsize=8)
+        drawn[col] = entry
+    return drawn
+
+
+def _numeric(series: Any) -> Any:
+    pd = _require("pandas")
+    return pd.to_numeric(series, errors="coerce").to_numpy(dtype=float)
+
+
+# ------------------------------------------------------------------------------------------------
+def write_simulated_batch(
+    directory: str | os.PathLike[str], n: int = 40, *, seed: Any = 0, fs: float = 1000.0,
+    freq: float = 1.0, cycles: float = 3, u_max: float = 100.0, spread: float = 0.05,
+    noise_percent: float = 0.2, outliers: int = 0, outlier_gain: float = 1.5, force: bool = False,
+) -> list[Path]:
+    """Write a simulated production batch: ``n`` P-I actuators as CSV records, to try the fleet on.
+
+    Each actuator is the paper's P-I model (its twenty weights on eq. (4)'s thresholds over
+    ``u_max``) with every weight scaled by ``1 + spread * N(0, 1)`` and the whole by a common
+    gain ``exp(spread * N(0, 1))`` (the spread of a production batch), driven by a
+    ``freq`` Hz sinusoid from 0 to ``u_max`` V for ``cycles`` periods at ``fs`` Hz, plus white
+    sensor noise of ``noise_percent`` % of the span (RMS). ``outliers`` of them (chosen at
+    random) get their gain multiplied by ``outlier_gain``: the actuator that differs.
+
+    Files are ``actuator-001.csv``... (``t_s,u_V,y_um``); each one's ``meta`` (in its header)
+    records its gain and whether it is an outlier. Returns the files, in order.
+    """
+    from . import paper_values as pv
+    from .data import Dataset, save_dataset
+    from .models.pi import PrandtlIshlinskii, equal_thresholds
+    from .signals import sinusoid
+
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n must be a positive integer, got {n!r}")
+    if isinstance(outliers, bool) or not isinstance(outliers, (int, np.integer)) or not 0 <= outliers <= n:
+        raise ValueError(f"outliers must be an integer between 0 and n={n}, got {outliers!r}")
+    for name, v in (("spread", spread), ("noise_percent", noise_percent)):
+        if not (np.isfinite(v) and v >= 0):
+            raise ValueError(f"{name} must be >= 0, got {v!r}")
+    if not (np.isfinite(outlier_gain) and outlier_gain > 0):
+        raise ValueError(f"outlier_gain must be positive, got {outlier_gain!r}")
+    rng = np.random.default_rng(seed)
+    u = sinusoid(freq, cycles, 0.0, u_max, 1.0 / fs)
+    t = np.arange(u.size) / fs
+    r = equal_thresholds(pv.PI_N, u_max)
+    w0 = np.asarray(pv.PI_WEIGHTS)
+    odd = set(rng.choice(n, size=outliers, replace=False).tolist()) if outliers else set()
+    folder = Path(directory)
+    files = []
+    width = max(3, len(str(n)))
+    for i in range(n):
+        gain = float(np.exp(spread * rng.standard_normal())) * (outlier_gain if i in odd else 1.0)
+        w = gain * w0 * (1.0 + spread * rng.standard_normal(w0.size))
+        y = PrandtlIshlinskii(r, w).simulate(u)
+        y = y + rng.normal(0.0, noise_percent / 100.0 * float(np.ptp(y)), y.size)
+        ds = Dataset(t, u, y, {"simulated": {"gain": gain, "outlier": i in odd, "seed": str(seed)}})
+        files.append(save_dataset(folder / f"actuator-{i + 1:0{width}d}.csv", ds, force=force))
+    return files
+
+
+__all__ = [
+    "COLUMNS", "DATA_SUFFIXES", "FIGURES", "OUTLIER_MADS", "BatchStatistics", "FitOptions", "MissingExtraError",
+    "batch_statistics", "find_records", "fit_record", "identify_many", "identify_record", "local_cluster",
+    "plot_histograms", "write_simulated_batch", "write_summary",
+]

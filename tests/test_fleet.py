@@ -1,0 +1,364 @@
+"""Fleet identification (piezohyst.fleet, ``piezohyst fleet identify``): on a LocalCluster in this
+process, on a ``dask scheduler`` + ``dask worker`` pair started here (loopback only, killed at the
+end), and serially; the same figures every way, the corrupt record a row, the odd actuator flagged."""
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import piezohyst as ph
+from piezohyst.cli import main
+from piezohyst.fleet import (
+    COLUMNS,
+    FitOptions,
+    MissingExtraError,
+    batch_statistics,
+    find_records,
+    identify_many,
+    identify_record,
+    local_cluster,
+    plot_histograms,
+    write_simulated_batch,
+)
+
+from .conftest import ROOT
+
+N_ACTUATORS = 40
+
+
+def _truth(path):
+    """The simulated actuator's own record of its gain and outlier status (the "# meta:" line)."""
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
+        if line.startswith("# meta:"):
+            return json.loads(line[len("# meta:"):])["simulated"]
+    raise AssertionError(f"{path} has no meta line")
+
+
+@pytest.fixture(scope="module")
+def batch(tmp_path_factory):
+    """40 simulated actuators (one with 1.6x the gain) of 1500 samples, and one corrupt file."""
+    folder = tmp_path_factory.mktemp("batch")
+    files = write_simulated_batch(folder, N_ACTUATORS, seed=7, fs=500.0, cycles=3, outliers=1, outlier_gain=1.6)
+    (folder / "corrupt.csv").write_text("t_s,u_V,y_um\n0,0,0\n0.002,1\n", encoding="utf-8")
+    odd = [f.stem for f in files if _truth(f)["outlier"]]
+    assert len(odd) == 1
+    return {"dir": folder, "files": files, "outlier": odd[0]}
+
+
+@pytest.fixture(scope="module")
+def serial(batch):
+    return identify_many(batch["dir"], client="serial")
+
+
+def _fit_pi_rmse(path):
+    ds = ph.load_dataset(path)
+    return ph.fit_pi(ds.u, ds.y).rmse
+
+
+def _check_batch(df, batch):
+    """What every way of running the batch must give."""
+    assert list(df.columns) == list(COLUMNS)
+    assert len(df) == N_ACTUATORS + 1
+    assert df["record"].tolist() == sorted([f.stem for f in batch["files"]] + ["corrupt"])
+    bad = df[df["record"] == "corrupt"].iloc[0]
+    assert bad["status"] == "error" and "corrupt.csv" in bad["error"] and "DataError" in bad["error"]
+    assert (df[df["record"] != "corrupt"]["status"] == "ok").all()
+    good = df[df["status"] == "ok"]
+    # the flags by hand: beyond 5 raw MADs from the median in any figure (a batch of 40 normal
+    # actuators may hold a genuine 3.4-sigma one too; the simulated odd one must be among them)
+    by_hand = np.zeros(len(good), dtype=bool)
+    for col in ("gain_um_per_v", "loop_width_percent", "fit_rmse_percent_of_span"):
+        x = good[col].to_numpy()
+        med = np.median(x)
+        by_hand |= np.abs(x - med) > 5 * np.median(np.abs(x - med))
+    assert good["outlier"].tolist() == by_hand.tolist() and not df[df["status"] != "ok"]["outlier"].any()
+    odd = good[good["record"] == batch["outlier"]].iloc[0]
+    assert odd["outlier"] and odd["outlier_reason"].startswith("gain")
+    assert odd["gain_um_per_v"] == good["gain_um_per_v"].max()
+    assert np.all(good["holdout_rmse_um"].isna())  # fit_pi fits the whole record: no hold-out figure
+    assert np.all(good["loop_width_percent"].between(5, 25)) and np.all(good["gain_um_per_v"] > 0)
+
+
+def test_serial_batch_equals_fit_pi_and_flags_the_odd_actuator(batch, serial):
+    _check_batch(serial, batch)
+    for f in batch["files"][:5]:
+        row = serial[serial["file"] == str(f)].iloc[0]
+        assert row["fit_rmse_um"] == _fit_pi_rmse(f)
+        ds = ph.load_dataset(f)
+        lf = ph.loop_figures(ds.u, ds.y)
+        assert row["loop_width_um"] == lf.width and row["gain_um_per_v"] == np.ptp(ds.y) / np.ptp(ds.u)
+
+
+def test_local_cluster_two_workers_equals_serial(batch, serial, tmp_path):
+    client = local_cluster(2)
+    try:
+        env = client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"), __import__("numba").config.NUMBA_NUM_THREADS))
+        assert len(env) == 2 and all(v == ("1", 1) for v in env.values())
+        assert all(w["nthreads"] == 1 for w in client.scheduler_info()["workers"].values())
+        ticks = client.run(lambda: __import__("dask").config.get("distributed.admin.tick.interval"))
+        assert set(ticks.values()) == {ph.fleet.LOCAL_CLUSTER_CONFIG["distributed.admin.tick.interval"]}
+        seen = []
+        df = identify_many(batch["dir"], client=client, out=tmp_path, progress=lambda d, n, row: seen.append((d, n)))
+        assert client.status == "running"  # a client we passed is left open
+        pids = list(client.run(os.getpid).values())
+    finally:
+        client.close()
+        client.cluster.close()
+    import psutil
+
+    _, alive = psutil.wait_procs([psutil.Process(p) for p in pids if psutil.pid_exists(p)], timeout=20)
+    assert not alive  # the workers stopped with the cluster
+    _check_batch(df, batch)
+    assert sorted(seen) == [(i, N_ACTUATORS + 1) for i in range(1, N_ACTUATORS + 2)]
+    figures = [c for c in COLUMNS if c.endswith(("_um", "_percent", "_span", "_per_v", "samples", "fs_hz"))]
+    pd.testing.assert_frame_equal(df[["record", "status", "kind", "method", *figures]],
+                                  serial[["record", "status", "kind", "method", *figures]])
+    models = sorted((tmp_path / "models").glob("*.json"))
+    assert len(models) == N_ACTUATORS
+    ds = ph.load_dataset(batch["files"][0])
+    assert ph.load_model(models[0]) == ph.fit_pi(ds.u, ds.y).model
+    back = pd.read_csv(tmp_path / "summary.csv", keep_default_na=False,
+                       na_values=[""])
+    assert back["fit_rmse_um"].equals(df["fit_rmse_um"]) and back["outlier"].tolist() == df["outlier"].tolist()
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _stop(procs):
+    """Stop the scheduler and worker (SIGTERM, then SIGKILL) and every process they started;
+    return the pids of any that had to be killed at the end."""
+    import psutil
+
+    tree = []
+    for p in procs:
+        try:
+            tree += psutil.Process(p.pid).children(recursive=True)
+        except psutil.NoSuchProcess:
+            pass
+    for p in reversed(procs):
+        p.terminate()
+    for p in procs:
+        try:
+            p.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout=10)
+    _, alive = psutil.wait_procs(tree, timeout=20)
+    for c in alive:
+        c.kill()
+    return [c.pid for c in alive]
+
+
+def test_cli_on_a_dask_scheduler_and_worker_started_here(batch, serial, tmp_path, capsys):
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ, "NUMBA_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join([os.path.join(ROOT, "src"), os.environ.get("PYTHONPATH", "")])}
+    procs = []
+    try:
+        with open(tmp_path / "dask.log", "wb") as log:  # the children keep their own copy of it
+            procs.append(subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1",
+                                           "--port", str(port), "--no-dashboard", "--idle-timeout", "300"],
+                                          env=env, stdout=log, stderr=subprocess.STDOUT))
+            procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--host", "127.0.0.1",
+                                           "--nthreads", "1", "--nworkers", "1", "--no-dashboard",
+                                           "--death-timeout", "60"],
+                                          env=env, stdout=log, stderr=subprocess.STDOUT))
+        from distributed import Client
+
+        with Client(address, timeout=60) as c:  # bounded wait for the pair to come up
+            c.wait_for_workers(1, timeout=120)
+        out = tmp_path / "out"
+        code = main(["fleet", "identify", str(batch["dir"]), "--model", "pi", "--scheduler", address,
+                     "--out", str(out), "--json"])
+        printed = capsys.readouterr()
+        assert code == 0, printed.err
+    finally:
+        left = _stop(procs)
+    assert not left, f"processes still running after the test: {left}"
+    doc = json.loads(printed.out)  # nothing else on stdout
+    summary = pd.read_csv(out / "summary.csv", keep_default_na=False, na_values=[""])  # round-trips floats
+    assert doc["records"] == N_ACTUATORS + 1 and doc["ok"] == N_ACTUATORS and doc["failed"] == 1
+    assert doc["cluster"] == address
+    assert [o["record"] for o in doc["statistics"]["outliers"]] == summary[summary["outlier"]]["record"].tolist()
+    assert doc["failed_records"][0]["record"] == "corrupt"
+    _check_batch(summary, batch)
+    assert len(list((out / "models").glob("*.json"))) == N_ACTUATORS
+    assert (out / "fleet_histograms.png").stat().st_size > 0
+    for _, row in summary[summary["status"] == "ok"].iterrows():  # the acceptance: ph.fit_pi on the same files
+        assert row["fit_rmse_um"] == _fit_pi_rmse(row["file"]), row["record"]
+        assert (out / "models" / f"{row['record']}.json").is_file()
+    assert summary["fit_rmse_um"].equals(serial["fit_rmse_um"])
+
+
+def test_resume_skips_done_records_and_checks_they_still_apply(tmp_path, monkeypatch):
+    files = write_simulated_batch(tmp_path / "b", 3, seed=3, fs=200.0, cycles=3)
+    out = tmp_path / "out"
+    first = identify_many(files, client="serial", out=out)
+    assert not first["resumed"].any() and (first["status"] == "ok").all()
+    stamp = [(out / "models" / f"{f.stem}.json").stat().st_mtime_ns for f in files]
+
+    def no_cluster(*a, **k):
+        raise AssertionError("a cluster was started with nothing to fit")
+
+    monkeypatch.setattr(ph.fleet, "local_cluster", no_cluster)
+    again = identify_many(files, out=out)  # client=None, but every record is done
+    assert again["resumed"].all()
+    assert [(out / "models" / f"{f.stem}.json").stat().st_mtime_ns for f in files] == stamp  # not rewritten
+    cols = ["record", "status", "fit_rmse_um", "loop_width_um", "gain_um_per_v", "elapsed_s"]
+    pd.testing.assert_frame_equal(again[cols], first[cols])
+    # other options: refused up front, naming what differs
+    with pytest.raises(ValueError, match="other options.*n None there, 10 now"):
+        identify_many(files, client="serial", out=out, n=10)
+    # a data file that changed since its model was made: an error row, not a stale model
+    ds = ph.load_dataset(files[1])
+    ph.save_dataset(files[1], ph.Dataset(ds.t, ds.u, ds.y * 1.01), force=True)
+    third = identify_many(files, client="serial", out=out)
+    assert third["status"].tolist() == ["ok", "error", "ok"] and "changed" in third["error"][1]
+    forced = identify_many(files, client="serial", out=out, force=True)
+    assert (forced["status"] == "ok").all() and not forced["resumed"].any()
+    assert forced["fit_rmse_um"][1] == _fit_pi_rmse(files[1]) != first["fit_rmse_um"][1]
+
+
+def test_other_kinds_go_through_fit_model_and_fit_bouc_wen(tmp_path):
+    files = write_simulated_batch(tmp_path, 2, seed=4, fs=200.0, cycles=3)
+    ds = ph.load_dataset(files[0])
+    df = identify_many(files, kind="asymmetric-pi", client="serial", n=8, delay=0)
+    fit = ph.fit_model(ds.u, ds.y, ds.dt, "asymmetric-pi", n=8, delay=0)
+    assert df["kind"][0] == fit.model.kind and df["method"][0] == fit.method and df["fit_rmse_um"][0] == fit.rmse
+    assert df["holdout_rmse_um"][0] == fit.info["holdout"]["rmse"] > 0
+    bw = identify_record(files[0], FitOptions(kind="bouc-wen", max_iter=3, polish=False))
+    ref = ph.fit_bouc_wen(ds.u, ds.y, ds.dt, seed=0, max_iter=3, polish=False)
+    assert bw["row"]["status"] == "ok" and bw["row"]["fit_rmse_um"] == ref.rmse
+    assert bw["document"]["kind"] == "bouc-wen" and bw["document"]["extra"]["fleet"]["options"]["method"] == "pso"
+
+
+def test_find_records_folders_globs_and_unique_names(tmp_path):
+    for lot in ("lot1", "lot2"):
+        (tmp_path / lot).mkdir()
+        for name in ("a 1.csv", "b.csv", "notes.md"):
+            (tmp_path / lot / name).write_text("t,u,y\n0,0,0\n1,1,1\n", encoding="utf-8")
+    (tmp_path / "lot1" / "b.npz").write_bytes(b"")
+    recs = find_records([tmp_path / "lot1", str(tmp_path / "lot2" / "*.csv"), tmp_path / "lot1" / "b.csv"])
+    names = [n for n, _ in recs]
+    assert names == ["lot1__a_1", "b_csv", "b_npz", "lot2__a_1", "lot2__b"]  # duplicates once, names unique
+    assert [p.name for _, p in recs] == ["a 1.csv", "b.csv", "b.npz", "a 1.csv", "b.csv"]
+    with pytest.raises(FileNotFoundError, match="no such file or folder"):
+        find_records(tmp_path / "missing.csv")
+    with pytest.raises(FileNotFoundError, match="matches"):
+        find_records(str(tmp_path / "*.mat"))
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="no data files"):
+        find_records(tmp_path / "empty")
+    with pytest.raises(ValueError, match="empty"):
+        find_records([])
+
+
+def test_batch_statistics_median_mad_and_flags():
+    gains = [1.0, 2.0, 3.0, 4.0, 100.0, 3.0]  # median 3, |x - 3| = 2,1,0,1,97,0 -> MAD 1 (hand-computed)
+    df = pd.DataFrame({"record": list("abcdef"), "status": ["ok"] * 5 + ["error"],
+                       "gain_um_per_v": gains, "loop_width_percent": [10.0, 11.0, 10.5, 10.2, 10.4, np.nan],
+                       "fit_rmse_percent_of_span": [0.2] * 6})
+    st = batch_statistics(df)
+    d = st.distributions.loc["gain_um_per_v"]
+    assert d["n"] == 5 and d["median"] == 3.0 and d["mad"] == 1.0 and d["unit"] == "µm/V"
+    assert d["q25"] == 2.0 and d["q75"] == 4.0  # numpy's linear quantiles of 1,2,3,4,100
+    assert st.table["outlier"].tolist() == [False, False, False, False, True, False]
+    assert st.table["outlier_reason"][4] == "gain 100 µm/V is 97.0 MADs above the batch median 3"
+    # fit RMSE identical for all: MAD 0, nobody differs, nobody flagged for it
+    assert st.distributions.loc["fit_rmse_percent_of_span", "mad"] == 0.0
+    df.loc[1, "fit_rmse_percent_of_span"] = 0.3
+    assert "most of the batch shares" in batch_statistics(df).table["outlier_reason"][1]
+    assert batch_statistics(df, threshold=100).table["outlier"].sum() == 1  # 97 MADs < 100; RMSE still flagged
+    assert st.to_dict()["outliers"] == [{"record": "e", "reason": st.table["outlier_reason"][4]}]
+    with pytest.raises(ValueError, match="threshold"):
+        batch_statistics(df, threshold=0)
+    with pytest.raises(ValueError, match="lacks the column"):
+        batch_statistics(df.drop(columns="gain_um_per_v"))
+
+
+def test_histograms_take_axes_and_return_what_they_drew(serial):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3)
+    try:
+        drawn = plot_histograms(batch_statistics(serial), ax=axes)
+        assert list(drawn) == ["gain_um_per_v", "loop_width_percent", "fit_rmse_percent_of_span"]
+        assert [d["ax"] for d in drawn.values()] == list(axes)
+        assert axes[0].get_xlabel() == "gain (µm/V)" and axes[1].get_xlabel() == "loop width (% of span)"
+        assert sum(p.get_height() for p in drawn["gain_um_per_v"]["patches"]) == N_ACTUATORS
+        assert drawn["gain_um_per_v"]["outliers"] is not None and len(drawn["gain_um_per_v"]["limits"]) == 2
+        with pytest.raises(ValueError, match="3 Axes"):
+            plot_histograms(serial, ax=axes[:2])
+    finally:
+        plt.close(fig)
+
+
+def test_refusals_name_what_is_wrong(tmp_path):
+    f = write_simulated_batch(tmp_path, 1, fs=200.0)[0]
+    with pytest.raises(TypeError, match="unknown option.*'iterations'"):
+        identify_many(f, client="serial", iterations=5)
+    with pytest.raises(ValueError, match="unknown model kind"):
+        FitOptions(kind="spring")
+    with pytest.raises(ValueError, match="'pso' is for kind 'pi' or 'bouc-wen'"):
+        FitOptions(kind="preisach", method="pso")
+    with pytest.raises(ValueError, match="'auto' is not available for kind 'bouc-wen'"):
+        FitOptions(kind="bouc-wen", delay="auto")
+    with pytest.raises(ValueError, match="fs must be"):
+        FitOptions(fs=-1.0)
+    with pytest.raises(TypeError, match="client must be"):
+        identify_many(f, client=3)
+    with pytest.raises(ValueError, match="workers sizes the local cluster"):
+        identify_many(f, client="serial", workers=2)
+    with pytest.raises(ValueError, match="seed must be an integer >= 0"):
+        FitOptions(seed=-1)
+    (tmp_path / "afile").write_text("x", encoding="utf-8")
+    with pytest.raises(NotADirectoryError, match="not a folder"):
+        identify_many(f, client="serial", out=tmp_path / "afile")
+    with pytest.raises(ValueError, match="workers"):
+        local_cluster(0)
+
+
+def test_cli_refusals(tmp_path, capsys):
+    f = str(write_simulated_batch(tmp_path, 1, fs=200.0)[0])
+    with pytest.raises(SystemExit):  # a local cluster or a scheduler, not both
+        main(["fleet", "identify", f, "--model", "pi", "--out", str(tmp_path), "--workers", "2", "--scheduler", "x:1"])
+    assert "not allowed with" in capsys.readouterr().err
+    port = _free_port()  # nothing listens there
+    code = main(["fleet", "identify", f, "--model", "pi", "--out", str(tmp_path / "o"),
+                 "--scheduler", f"tcp://127.0.0.1:{port}", "--timeout", "1"])
+    assert code == 2 and "cannot reach the Dask scheduler" in capsys.readouterr().err
+    assert main(["fleet", "identify", f, "--model", "spring", "--out", str(tmp_path / "o")]) == 2
+    assert "unknown model kind" in capsys.readouterr().err
+
+
+def test_dask_is_optional(tmp_path, monkeypatch, capsys):
+    # importing piezohyst (and its fleet module) does not import dask or pandas
+    code = ("import sys, piezohyst as ph; ph.fleet; import piezohyst.cli; piezohyst.cli.build_parser(); "
+            "print(sorted(m for m in ('dask', 'distributed', 'pandas') if m in sys.modules))")
+    env = {**os.environ, "PYTHONPATH": os.path.join(ROOT, "src")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120, check=True)
+    assert out.stdout.strip() == "[]"
+    # without distributed: a clear message naming the extra, from the API and the command
+    f = str(write_simulated_batch(tmp_path, 1, fs=200.0)[0])
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    with pytest.raises(MissingExtraError, match=r"piezohyst\[fleet\]"):
+        identify_many(f)
+    assert main(["fleet", "identify", f, "--model", "pi", "--out", str(tmp_path / "o")]) == 2
+    assert "piezohyst[fleet]" in capsys.readouterr().err
+    assert isinstance(MissingExtraError("x"), ImportError)
+    assert identify_many(f, client="serial")["status"].tolist() == ["ok"]  # serial needs no Dask
