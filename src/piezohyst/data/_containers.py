@@ -65,6 +65,17 @@ def mat_v5(path: Path, limit: int, *, v4: bool = False) -> dict[str, Any]:
     where = str(path)
     check_size(where, path.stat().st_size, limit, "reading this MATLAB file")
     data = path.read_bytes()
+    # scipy picks the reader by its own reading of the header, not by ours: a v5 file with a damaged
+    # text header still goes to the v5 reader, so ask scipy which one it will use.
+    try:
+        from scipy.io.matlab import matfile_version
+
+        major = matfile_version(io.BytesIO(data))[0]
+    except Exception as exc:  # scipy raises several kinds for headers it cannot place
+        raise DataError(f"{where}: not a readable MATLAB file ({_first_line(exc)})") from None
+    if major == 2:
+        raise DataError(f"{where}: a MATLAB v7.3 file that is not valid HDF5")
+    v4 = major == 0
     if not v4:  # scipy's compiled reader can crash on a damaged file: check its structure first
         try:
             need = check(data, limit)
