@@ -63,7 +63,7 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     t = Table(title="Bouc-Wen benchmark: multisine test record, RMS error (m), lower is better")
     t.add_column("method")
     t.add_column("RMS error (m)", justify="right")
-    grey = "piezohyst: grey-box (the true model structure), PSO + multi-start + least squares"
+    grey = "piezohyst: grey-box (true model structure), PSO + multi-start + least squares"
     if len(runs) == 1:
         rows = [(grey, d["test_rmse_m"]["multisine"]),
                 ("piezohyst: PSO stage alone", d["stages"]["pso"]["test_rmse_m"]["multisine"])]
@@ -100,7 +100,8 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     st = d["stages"]
     con.print(f"first run: identification {d['identification_time_s']:.1f} s (best linear approximation and box "
               f"{st['bla']['time_s']:.3f} s; PSO {st['pso']['time_s']:.1f} s, training RMSE {st['pso']['rmse_m']:.3g} m; "
-              f"multi-start from {st['multistart']['starts']} personal bests {st['multistart']['time_s']:.1f} s; "
+              f"multi-start from {st['multistart']['starts']} distinct points of the search "
+              f"{st['multistart']['time_s']:.1f} s; "
               f"refinement {st['refinement']['time_s']:.1f} s, training RMSE {st['refinement']['rmse_m']:.3g} m, "
               f"which is the record's noise)")
     return 0

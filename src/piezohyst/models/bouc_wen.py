@@ -203,29 +203,41 @@ def foh_moments(w: float, bd: float, out: FloatArray) -> None:  # pragma: no cov
     The linear part of eq. (7) in ``z = (x, v / w0)`` and sample units is ``z' = A z + B f``
     with ``A = [[0, w], [-w, -bd]]``, ``B = (0, w)``, ``w = w0 dt``, ``bd = (b / m) dt``.
     Writes ``Phi = exp(A)`` (4 entries, row-major) to ``out[0:4]`` and the moments
-    ``M_n = int_0^1 exp(A (1 - s)) B s^n / n! ds``, n = 0 .. _NSER, to ``out[4 + 2n : 6 + 2n]``.
-    Scaling and doubling: on a sub-interval ``tau = 2^-q`` with ``|A tau| <= 1/2`` the series
-    ``M_n(tau) = tau^(n+1) sum_j (A tau)^j B / (j + n + 1)!`` converges in < 20 terms; doubling
-    uses ``M_n(2 tau) = Phi(tau) M_n(tau) + sum_k tau^(n-k) / (n-k)! M_k(tau)``.
+    ``M_n = int_0^1 exp(A (1 - s)) B s^n / n! ds``, n = 0 .. N, to ``out[4 + 2n : 6 + 2n]``
+    (N from the length of ``out``). Scaling and doubling: on a sub-interval ``tau = 2^-q`` with
+    ``|A tau| <= 1/2`` the series ``M_n(tau) = tau^(n+1) sum_j (A tau)^j B / (j + n + 1)!``
+    converges to rounding in under 20 terms; doubling uses
+    ``M_n(2 tau) = Phi(tau) M_n(tau) + sum_k tau^(n-k) / (n-k)! M_k(tau)``.
     Checked against ``scipy.linalg.expm`` of the augmented matrix in the tests.
     """
+    nm = (out.shape[0] - 4) // 2
     norm = max(abs(w), abs(w) + abs(bd))
     q = 0
     if norm > 0.5:
         q = int(math.ceil(math.log2(norm / 0.5)))
     tau = 2.0 ** (-q)
     a00, a01, a10, a11 = 0.0, w * tau, -w * tau, -bd * tau
-    # Krylov vectors (A tau)^j B (unscaled B), j = 0 .. 24, and Phi(tau)
-    nk = 25
-    kv0 = np.empty(nk)
-    kv1 = np.empty(nk)
-    kv0[0] = 0.0
-    kv1[0] = w
+    for n in range(nm):
+        out[4 + 2 * n] = 0.0
+        out[5 + 2 * n] = 0.0
+    # Krylov vectors (A tau)^j B accumulated into the moments, and Phi(tau) = sum (A tau)^j / j!
+    k0, k1 = 0.0, w
     p00, p01, p10, p11 = 1.0, 0.0, 0.0, 1.0
-    t00, t01, t10, t11 = 1.0, 0.0, 0.0, 1.0  # (A tau)^j / j!
-    for j in range(1, nk):
-        kv0[j] = a00 * kv0[j - 1] + a01 * kv1[j - 1]
-        kv1[j] = a10 * kv0[j - 1] + a11 * kv1[j - 1]
+    t00, t01, t10, t11 = 1.0, 0.0, 0.0, 1.0
+    scale = abs(w) + 1e-300
+    lead = 1.0  # 1 / (j + 1)!
+    j = 0
+    while True:
+        fact = lead
+        for n in range(nm):  # += (A tau)^j B / (j + n + 1)!
+            out[4 + 2 * n] += k0 * fact
+            out[5 + 2 * n] += k1 * fact
+            fact /= j + n + 2
+        j += 1
+        lead /= j + 1
+        n0 = a00 * k0 + a01 * k1
+        k1 = a10 * k0 + a11 * k1
+        k0 = n0
         n00 = (t00 * a00 + t01 * a10) / j
         n01 = (t00 * a01 + t01 * a11) / j
         n10 = (t10 * a00 + t11 * a10) / j
@@ -235,35 +247,24 @@ def foh_moments(w: float, bd: float, out: FloatArray) -> None:  # pragma: no cov
         p01 += t01
         p10 += t10
         p11 += t11
-    nm = _NSER + 1
-    m0 = np.empty(nm)
-    m1 = np.empty(nm)
+        if j >= 40 or (abs(t00) + abs(t01) + abs(t10) + abs(t11) < 1e-18
+                       and (abs(k0) + abs(k1)) * lead < 1e-18 * scale):
+            break
     for n in range(nm):
-        s0 = 0.0
-        s1 = 0.0
-        fact = _INVFACT[n + 1]  # 1 / (j + n + 1)! at j = 0
-        for j in range(nk):
-            s0 += kv0[j] * fact
-            s1 += kv1[j] * fact
-            fact /= j + n + 2
-        scale = tau ** (n + 1)
-        m0[n] = s0 * scale
-        m1[n] = s1 * scale
+        sc = tau ** (n + 1)
+        out[4 + 2 * n] *= sc
+        out[5 + 2 * n] *= sc
     for _ in range(q):
-        n0 = np.empty(nm)
-        n1 = np.empty(nm)
-        for n in range(nm):
-            s0 = p00 * m0[n] + p01 * m1[n]
-            s1 = p10 * m0[n] + p11 * m1[n]
+        for n in range(nm - 1, -1, -1):  # from the top: M_n(2 tau) needs the old M_k, k <= n
+            s0 = p00 * out[4 + 2 * n] + p01 * out[5 + 2 * n]
+            s1 = p10 * out[4 + 2 * n] + p11 * out[5 + 2 * n]
             c = 1.0
             for k in range(n, -1, -1):  # c = tau^(n-k) / (n-k)!
-                s0 += c * m0[k]
-                s1 += c * m1[k]
+                s0 += c * out[4 + 2 * k]
+                s1 += c * out[5 + 2 * k]
                 c = c * tau / (n - k + 1)
-            n0[n] = s0
-            n1[n] = s1
-        m0 = n0
-        m1 = n1
+            out[4 + 2 * n] = s0
+            out[5 + 2 * n] = s1
         q00 = p00 * p00 + p01 * p10
         q01 = p00 * p01 + p01 * p11
         q10 = p10 * p00 + p11 * p10
@@ -274,9 +275,6 @@ def foh_moments(w: float, bd: float, out: FloatArray) -> None:  # pragma: no cov
     out[1] = p01
     out[2] = p10
     out[3] = p11
-    for n in range(nm):
-        out[4 + 2 * n] = m0[n]
-        out[5 + 2 * n] = m1[n]
 
 
 @njit
@@ -356,27 +354,66 @@ def mech_step(p: FloatArray, st: FloatArray, f: float) -> float:  # pragma: no c
 
 
 @njit
-def _piece(p: FloatArray, x: float, v: float, dur: float, f0: float, f1: float, kap: float,
+def _piece(w: float, bd: float, x: float, v: float, f0: float, f1: float, kap: float,
            mu: float) -> tuple[float, float]:  # pragma: no cover - compiled
-    """(x, v) after ``dur`` samples of forcing ``f0 + f1 s + kap (1 - exp(-mu s)) / mu``.
+    """(x, v) after one unit of time of ``z' = A z + B f``, ``A = [[0, w], [-w, -bd]]``,
+    ``B = (0, w)``, forcing ``f0 + f1 s + kap (1 - exp(-mu s)) / mu``.
 
     One matrix exponential of the system augmented with the forcing's generator
-    ``S' = 1 - mu S``, ``s' = 1``: exact for any mu (no division by it). For the rare parts
-    of a sample (h changing sign inside it, or a closed form that would be ill-conditioned).
+    ``S' = 1 - mu S``, ``s' = 1``: exact for any mu (no division by it). The fallback of
+    :func:`_unit_response` where its closed form would be ill-conditioned.
     """
-    w = p[_P_W]
     g = np.zeros((5, 5))
-    g[0, 1] = w * dur
-    g[1, 0] = -w * dur
-    g[1, 1] = -p[_P_BD] * dur
-    g[1, 2] = kap * w * dur
-    g[1, 3] = f1 * w * dur
-    g[1, 4] = f0 * w * dur
-    g[2, 2] = -mu * dur
-    g[2, 4] = dur
-    g[3, 4] = dur
+    g[0, 1] = w
+    g[1, 0] = -w
+    g[1, 1] = -bd
+    g[1, 2] = kap * w
+    g[1, 3] = f1 * w
+    g[1, 4] = f0 * w
+    g[2, 2] = -mu
+    g[2, 4] = 1.0
+    g[3, 4] = 1.0
     e = expm_small(g)
     return e[0, 0] * x + e[0, 1] * v + e[0, 4], e[1, 0] * x + e[1, 1] * v + e[1, 4]
+
+
+@njit
+def _unit_response(a: FloatArray, po: int, mo: int, w: float, bd: float, x: float, v: float, f0: float,
+                   f1: float, kap: float, mu: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """(x, v) after one unit of time of the system of :func:`_piece` with the same forcing, from
+    its transition matrix ``a[po:po+4]`` and moments ``M_n = a[mo+2n : mo+2n+2]``:
+    ``Phi z + f0 M_0 + f1 M_1 + kap T(mu)``, ``T`` by its series below ``_THETA``, else in closed
+    form ``(M_0 - (A + mu I)^-1 (Phi - exp(-mu) I) B) / mu`` (or by :func:`_piece` where that
+    would lose digits)."""
+    if abs(mu) < _THETA:
+        nm = -mu
+        t0 = a[mo + 2 * _NSER]
+        t1 = a[mo + 2 * _NSER + 1]
+        for n in range(_NSER - 1, 0, -1):
+            t0 = t0 * nm + a[mo + 2 * n]
+            t1 = t1 * nm + a[mo + 2 * n + 1]
+    else:
+        # smallest |eigenvalue| of A + mu I: the closed form loses digits ~ eps / that
+        qd = 0.25 * bd * bd - w * w
+        sh = mu - 0.5 * bd
+        if qd < 0.0:
+            nu = math.sqrt(sh * sh - qd)
+        else:
+            r = math.sqrt(qd)
+            nu = min(abs(sh + r), abs(sh - r))
+        if not nu > 1e-3:
+            return _piece(w, bd, x, v, f0, f1, kap, mu)
+        e = math.exp(-mu)
+        det = mu * (mu - bd) + w * w
+        b0 = a[po + 1] * w
+        b1 = (a[po + 3] - e) * w
+        e0 = ((mu - bd) * b0 - w * b1) / det
+        e1 = (w * b0 + mu * b1) / det
+        t0 = (a[mo] - e0) / mu
+        t1 = (a[mo + 1] - e1) / mu
+    xn = (f0 * a[mo] + f1 * a[mo + 2] + kap * t0) + (a[po] * x + a[po + 1] * v)
+    vn = (f0 * a[mo + 1] + f1 * a[mo + 3] + kap * t1) + (a[po + 2] * x + a[po + 3] * v)
+    return xn, vn
 
 
 @njit
@@ -443,9 +480,16 @@ def _foh_common(p: FloatArray, u0: float, h: float, x: float, v: float, du: floa
 
 @njit
 def _foh_general(p: FloatArray, u0: float, h: float, x: float, v: float, du: float) -> tuple[float, float, float]:  # pragma: no cover
-    """:func:`_foh_common` for any increment: series or closed form, split at a sign change of h."""
+    """:func:`_foh_common` for any increment: series or closed form, split at a sign change of h.
+
+    A part of a sample of length ``tau`` is a unit step of the same system with ``w tau``,
+    ``bd tau`` and the forcing's slope, ``kap`` and ``mu`` times ``tau``; its transition matrix
+    and moments come from :func:`foh_moments`.
+    """
     ad1 = p[1]
     d1 = p[0]
+    w = p[_P_W]
+    bd = p[_P_BD]
     s = 1.0 if du >= 0.0 else -1.0
     lam = abs(du)
     if h > 0.0:
@@ -458,48 +502,21 @@ def _foh_general(p: FloatArray, u0: float, h: float, x: float, v: float, du: flo
     kap = mu * h - ad1 * du
     f0 = d1 * u0 - h
     f1 = d1 * du
-    if abs(mu) < _THETA:
-        phi, t0, t1 = _series(p, mu)
-        h1 = h - kap * phi
-        if not sig * h1 < 0.0:
-            xn = (f0 * p[_P_MOM] + f1 * p[_P_MOM + 2] + kap * t0) + (p[4] * x + p[5] * v)
-            vn = (f0 * p[_P_MOM + 1] + f1 * p[_P_MOM + 3] + kap * t1) + (p[6] * x + p[7] * v)
-            return h1, xn, vn
-    else:
-        em1 = math.expm1(-mu)
-        h1 = h + kap * em1 / mu
-        if not sig * h1 < 0.0:
-            w = p[_P_W]
-            bd = p[_P_BD]
-            # smallest |eigenvalue| of A + mu I: the closed form loses digits ~ eps / that
-            qd = 0.25 * bd * bd - w * w
-            sh = mu - 0.5 * bd
-            if qd < 0.0:
-                nu = math.sqrt(sh * sh - qd)
-            else:
-                r = math.sqrt(qd)
-                nu = min(abs(sh + r), abs(sh - r))
-            if nu > 1e-3:
-                e = 1.0 + em1
-                det = mu * (mu - bd) + w * w
-                b0 = p[5] * w
-                b1 = (p[7] - e) * w
-                e0 = ((mu - bd) * b0 - w * b1) / det
-                e1 = (w * b0 + mu * b1) / det
-                t0 = (p[_P_MOM] - e0) / mu
-                t1 = (p[_P_MOM + 1] - e1) / mu
-                xn = (f0 * p[_P_MOM] + f1 * p[_P_MOM + 2] + kap * t0) + (p[4] * x + p[5] * v)
-                vn = (f0 * p[_P_MOM + 1] + f1 * p[_P_MOM + 3] + kap * t1) + (p[6] * x + p[7] * v)
-                return h1, xn, vn
-            xn, vn = _piece(p, x, v, 1.0, f0, f1, kap, mu)
-            return h1, xn, vn
+    h1 = h - kap * _h_phi1(mu)
+    if not sig * h1 < 0.0:
+        x, v = _unit_response(p, _P_PHI, _P_MOM, w, bd, x, v, f0, f1, kap, mu)
+        return h1, x, v
     # h changes sign inside the sample: split it at the crossing
     s0 = _crossing(h, kap, mu)
-    x, v = _piece(p, x, v, s0, f0, f1, kap, mu)
+    mom = np.empty(4 + 2 * (_NSER + 1))
+    foh_moments(w * s0, bd * s0, mom)
+    x, v = _unit_response(mom, 0, 4, w * s0, bd * s0, x, v, f0, f1 * s0, kap * s0, mu * s0)
+    rest = 1.0 - s0
     mu2 = (p[2] - p[3] * s * sig) * lam
     kap2 = -ad1 * du
-    rest = 1.0 - s0
-    x, v = _piece(p, x, v, rest, d1 * (u0 + du * s0), f1, kap2, mu2)
+    foh_moments(w * rest, bd * rest, mom)
+    x, v = _unit_response(mom, 0, 4, w * rest, bd * rest, x, v, d1 * (u0 + du * s0), f1 * rest, kap2 * rest,
+                          mu2 * rest)
     h1 = -kap2 * rest * _h_phi1(mu2 * rest)
     return h1, x, v
 
