@@ -420,11 +420,13 @@ def run_benchmarks(path: str | Path, *, seeds: Sequence[int] = (0,), bounds_scal
     say = on_step or (lambda s: None)
     out: list[BenchmarkResult] = []
     truth: dict[str, float] | None = None
+    def tagged(tag: str) -> Callable[[str], None]:
+        return lambda s: say(tag + s)
+
     for scale in bounds_scales:
         for seed in seeds:
-            tag = f"bounds x{scale:g}, seed {seed}: "
             res = run_benchmark(path, seed=seed, bounds_scale=scale, data=data, true_errors=truth,
-                                on_step=lambda s, tag=tag: say(tag + s), **options)
+                                on_step=tagged(f"bounds x{scale:g}, seed {seed}: "), **options)
             truth = res.true_model_test_rmse
             out.append(res)
     return out
