@@ -7,9 +7,34 @@ from scipy.linalg import expm
 
 import piezohyst as ph
 from piezohyst import paper_values as pv
-from piezohyst.models.bouc_wen import bw_h_update, expm_small, solve_ivp_reference
+from piezohyst.models.bouc_wen import (
+    bw_h_update,
+    bw_initial_state,
+    bw_params,
+    bw_simulate,
+    bw_swarm_rmse,
+    expm_small,
+    foh_moments,
+    solve_ivp_reference,
+)
 
 DT = 1e-4
+
+
+def _chirp(n, f_hi, dt=DT):
+    """0-100 V, frequency rising linearly from 0 to f_hi over n samples."""
+    t = np.arange(n) * dt
+    return 50.0 - 50.0 * np.cos(np.pi * f_hi / t[-1] * t**2)
+
+
+# inputs that excite the dynamics: the 1.70 kHz resonance of the paper's parameters
+# (zeta = 0.0017) rings for ~0.1 s after a jump, and a chirp to 2 kHz drives it
+FAST_INPUTS = {
+    "step": np.concatenate([np.zeros(5), np.full(1200, 50.0)]),
+    "staircase": np.repeat([0.0, 20.0, 60.0, 30.0, 90.0, 10.0, 50.0, 100.0, 0.0, 40.0], 150),
+    "bipolar staircase": np.repeat([0.0, -80.0, 60.0, -30.0, 90.0, -100.0, 50.0, 100.0, -60.0, 40.0], 150),
+    "chirp to 2 kHz": _chirp(1000, 2000.0),
+}
 
 
 def test_paper_model_loop_at_1hz():
@@ -37,6 +62,53 @@ def test_simulate_matches_solve_ivp_within_1nm(gamma):
     x = bw.simulate(u, DT)
     assert np.abs(x - x_ref).max() < 1e-9  # metres: 1 nm
     assert np.abs(bw.hysteresis(u) - h_ref).max() < 1e-11
+
+
+@pytest.mark.parametrize("variant, inp", [
+    ("paper", "step"), ("paper", "staircase"), ("paper", "bipolar staircase"), ("paper", "chirp to 2 kHz"),
+    ("gamma > beta", "bipolar staircase"), ("gamma < 0", "staircase"), ("overdamped", "staircase"),
+    ("h0", "step"),
+])
+def test_simulate_is_exact_for_fast_piecewise_linear_input(variant, inp):
+    # issue 13: the discretisation used to be exact only for forcing linear within a sample
+    # (35 nm off after one 50 V step, 95 nm on a staircase); now it integrates the exact
+    # (affine + exponential) forcing and splits samples where h changes sign. The reference is
+    # converged to ~1e-13 m (test_the_reference_is_converged); doubling the damping b moves
+    # these responses by ~100 nm, a wrong moment or transition matrix by far more than 1 pm.
+    params = {**pv.BOUC_WEN}
+    crit = 2 * np.sqrt(params["k"] * params["m"])
+    params.update({"paper": {}, "gamma > beta": {"gamma": 0.1}, "gamma < 0": {"gamma": -0.05},
+                   "overdamped": {"b": 3 * crit}, "h0": {"h0": 3e-7}}[variant])
+    bw = ph.BoucWen(**params)
+    u = FAST_INPUTS[inp]
+    x_ref, h_ref = solve_ivp_reference(bw, u, DT, rtol=1e-11)
+    x = bw.simulate(u, DT)
+    assert np.ptp(x_ref) > 1e-6  # a real response (metres)
+    assert np.abs(x - x_ref).max() < 1e-12  # metres: 1 pm
+    np.testing.assert_allclose(bw.hysteresis(u), h_ref, rtol=0, atol=1e-14)
+
+
+def test_the_reference_is_converged():
+    # halving the reference's largest step moves it by far less than the 1 pm tolerance above
+    bw = pv.bouc_wen_model()
+    u = FAST_INPUTS["chirp to 2 kHz"]
+    a, _ = solve_ivp_reference(bw, u, DT, rtol=1e-11)
+    b, _ = solve_ivp_reference(bw, u, DT, rtol=1e-11, max_step=DT / 2)
+    assert np.abs(a - b).max() < 2e-13
+
+
+def test_damping_is_what_the_step_response_shows():
+    # the resonance's ring-down after a step decays as exp(-zeta w0 t): doubling b (the
+    # surviving mutant of issue 13) halves its time constant; measured on the envelope
+    bw = pv.bouc_wen_model()
+    u = np.concatenate([np.zeros(5), np.full(3000, 50.0)])
+    x = bw.simulate(u, DT)
+    ring = np.abs(x - x[-600:].mean())
+    early, late = ring[100:400].max(), ring[2300:2600].max()
+    t = (2300 - 100) * DT
+    rate = np.log(early / late) / t
+    expected = bw.damping_ratio * 2 * np.pi * bw.natural_frequency_hz  # 1/s, ~18.2
+    assert rate == pytest.approx(expected, rel=0.05)
 
 
 @pytest.mark.parametrize("h0, du, gamma", [(-5e-8, 40.0, 0.05), (5e-8, -40.0, 0.05), (-5e-8, 40.0, 0.1), (1e-8, 10.0, -0.03)])
@@ -105,3 +177,58 @@ def test_refuses_bad_dt_and_signal():
         bw.simulate([0.0, 1.0], DT, hold="cubic")
     with pytest.raises(TypeError, match="m must be a real number"):
         ph.BoucWen(**{**pv.BOUC_WEN, "m": "heavy"})
+
+
+@pytest.mark.parametrize("w, bd", [(1.07, 0.0037), (0.01, 0.0), (30.0, 500.0), (2.0, 4.0), (1e-4, 3.0)])
+def test_foh_moments_match_the_augmented_matrix_exponential(w, bd):
+    # M_n = int_0^1 expm(A (1 - s)) B s^n / n! ds is the top-right block of expm of A augmented
+    # with a chain of integrators (Van Loan); w = w0 dt, bd = (b/m) dt from resonant to stiff
+    nser = 8
+    g = np.zeros((3 + nser, 3 + nser))
+    g[0, 1], g[1, 0], g[1, 1], g[1, 2] = w, -w, -bd, w
+    for j in range(2, 2 + nser):
+        g[j, j + 1] = 1.0
+    e = expm(g)
+    out = np.empty(4 + 2 * (nser + 1))
+    foh_moments(w, bd, out)
+    np.testing.assert_allclose(out[:4], e[:2, :2].ravel(), rtol=1e-12, atol=1e-14)
+    for n in range(nser + 1):
+        np.testing.assert_allclose(out[4 + 2 * n: 6 + 2 * n], e[:2, 2 + n], rtol=1e-10, atol=1e-14 * w)
+
+
+@pytest.mark.parametrize("hold", ["foh", "zoh"])
+@pytest.mark.parametrize("signal", ["1 Hz", "staircase", "chirp"])
+def test_swarm_rmse_equals_simulating_each_particle(hold, signal, rng):
+    # the swarm kernel (particles side by side, common path vectorised) against BoucWen.simulate
+    # one particle at a time, over a box like fit_bouc_wen's, plus the paper's model
+    u = {"1 Hz": ph.sinusoid(1.0, 1, 0.0, 100.0, DT), "staircase": FAST_INPUTS["bipolar staircase"],
+         "chirp": FAST_INPUTS["chirp to 2 kHz"]}[signal]
+    y = pv.bouc_wen_model().simulate(u, DT) + rng.normal(0, 2e-9, u.size)
+    lo = np.log10([1e-3, 0.1, 1e5, 2e-9, 0.05, 1e-4, 1e-9])
+    hi = np.log10([10.0, 1e5, 1e10, 2e-7, 2.0, 1.0, 1e-9])
+    theta = 10 ** rng.uniform(lo, hi, (19, 7))
+    theta[:, 6] = rng.uniform(-0.1, 0.1, 19)
+    theta = np.vstack([theta, [list(pv.BOUC_WEN.values())[:7]]])
+    got = bw_swarm_rmse(theta, u, y, DT, hold == "foh", True, 1e6)
+    for t, g in zip(theta, got):
+        x = bw_simulate(bw_params(*t, 0.0, DT, hold == "foh"), bw_initial_state(0.0), u)
+        r = (y - x) * 1e6
+        assert g == pytest.approx(np.std(r), rel=1e-9)
+
+
+def test_swarm_rmse_marks_invalid_and_diverging_particles_inf():
+    u = ph.sinusoid(1.0, 1, 0.0, 100.0, 1e-3)
+    y = pv.bouc_wen_model().simulate(u, 1e-3)
+    good = [0.75, 27.96, 8.54e7, 2.15e-8, 0.472, 0.072, 0.0]
+    theta = np.array([good, [-1.0, *good[1:]], [np.nan, *good[1:]], [*good[:5], 1e-4, -5.0], good])
+    got = bw_swarm_rmse(theta, u, y, 1e-3, True, True, 1e6)
+    assert np.isfinite(got[0]) and got[0] == got[4] and got[0] < 0.01
+    assert np.all(np.isinf(got[1:4]))  # m < 0, NaN, and h growing as exp(5 u) until it overflows
+
+
+def test_streaming_equals_batch_through_fast_input():
+    # the step the stepper takes and the batch loop share one kernel, rare paths included
+    bw = ph.BoucWen(**{**pv.BOUC_WEN, "gamma": 0.03})
+    u = FAST_INPUTS["bipolar staircase"][:600]
+    s = bw.stepper(DT)
+    np.testing.assert_array_equal(np.array([s.step(v) for v in u]), bw.simulate(u, DT))
