@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -189,7 +189,8 @@ class CommissionedController:
 
 
 def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None = None, n: int | None = None,
-               excitation: Any = None, tune: bool = True, learning_gain: float = 0.5) -> CommissionedController:
+               excitation: Any = None, tune: bool = True, learning_gain: float = 0.5,
+               progress: Callable[[str], None] | None = None) -> CommissionedController:
     """Identify ``plant`` and build its controller (module docstring).
 
     Parameters
@@ -206,6 +207,9 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         Your own identification command instead of :func:`commissioning_excitation`.
     n : int, optional
         Fix the P-I operators / Preisach levels (default: chosen on held-out data).
+    progress : callable, optional
+        Called with a short description before each stage (and passed on to
+        :func:`~piezohyst.identify.fit_model`); a :class:`~piezohyst.Progress` shows them.
     """
     t0 = time.perf_counter()
     dt = getattr(plant, "dt", None)
@@ -215,10 +219,13 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     if not rng_u[0] < rng_u[1]:
         raise ValueError(f"u_range must be (low, high) with low < high, got {rng_u}")
     cmd = commissioning_excitation(dt, rng_u) if excitation is None else as_signal("excitation", excitation)  # type: ignore[arg-type]
+    say = progress or (lambda s: None)
+    say(f"identification run ({cmd.size * dt:.3g} s)")
     ds = open_loop(plant, cmd)
-    fit = fit_model(ds.u, ds.y, dt, "auto", kinds=COMMISSION_KINDS, n=n)
+    fit = fit_model(ds.u, ds.y, dt, "auto", kinds=COMMISSION_KINDS, n=n, progress=progress)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain)
     if tune:
+        say("tuning the integral feedback on the plant")
         level = float(np.median(ds.y))
         ctl.tuning = tune_integral_feedback(plant, ctl.feedforward(), level=level, feedback_at="command",
                                             output_scale=ctl.volts_per_um)

@@ -191,6 +191,12 @@ class AsymmetricPI:
         return {"inner": kind_of(self.inner), "knots": self.output_map.knots.tolist(),
                 "map_slopes": self.output_map.segment_slopes().tolist()}
 
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
+        from .base import model_html
+
+        return model_html(self)
+
 
 class AsymmetricStepper:
     def __init__(self, model: AsymmetricPI, inner: Any):

@@ -236,3 +236,16 @@ class Compensator:
 
     def settings(self) -> dict[str, Any]:
         return {"u_range": list(self.u_range) if self.u_range else None, "max_slew": self.max_slew}
+
+
+def model_html(model: Any) -> str:
+    """An HTML summary of a model (every kind's ``_repr_html_``): kind, units, invertibility,
+    and its parameters as its model file holds them (nested models as inner tables)."""
+    from .. import _html
+
+    name = type(model).__name__
+    kind = getattr(type(model), "kind", name)
+    rows = [("kind", kind), ("output unit", getattr(model, "output_unit", "um").replace("um", "µm")),
+            ("invertible", bool(getattr(model, "is_invertible", False))),
+            ("needs dt (dynamic)", bool(getattr(model, "dynamic", False)))]
+    return _html.block(f"{name} model", _html.table(rows), _html.parameters(model.to_dict()))

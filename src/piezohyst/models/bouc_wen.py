@@ -352,6 +352,12 @@ class BoucWen:
             raise ValueError(f"unknown Bouc-Wen parameter(s) {sorted(unknown)}")
         return cls(**{n: params[n] for n in names if n in params})
 
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
+        from .base import model_html
+
+        return model_html(self)
+
 
 def solve_ivp_reference(model: BoucWen, u: Any, dt: float, *, method: str = "LSODA", rtol: float = 1e-10) -> tuple[FloatArray, FloatArray]:
     """An independent, slow reference for eqs. (7)-(8): (x, h) in metres at the sample instants.

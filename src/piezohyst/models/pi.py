@@ -271,6 +271,12 @@ class PrandtlIshlinskii:
             self.thresholds, self.weights, initial_state, self.offset, self.input_offset
         )
 
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
+        from .base import model_html
+
+        return model_html(self)
+
 
 class PIStepper:
     """Streaming P-I evaluation: one input sample in, one output sample out.

@@ -307,6 +307,12 @@ class Preisach:
             raise ValueError(f"'levels' is {params['levels']!r} but the weights make a {m.n}-level grid")
         return m
 
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
+        from .base import model_html
+
+        return model_html(self)
+
 
 class PreisachStepper:
     """Streaming simulation, on the kernel :meth:`Preisach.simulate` uses."""

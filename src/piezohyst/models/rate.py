@@ -215,6 +215,12 @@ class RateDependent:
                 "output_taus_s": self.taus.tolist(), "lag_weights": self.lag_weights.tolist(),
                 "inverse_is_stable": self.inverse_is_stable}
 
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
+        from .base import model_html
+
+        return model_html(self)
+
 
 #: The name of the first version, when the static part was always a P-I model.
 RateDependentPI = RateDependent
