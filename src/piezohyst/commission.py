@@ -96,13 +96,16 @@ class CommissionedController:
 
     @property
     def model(self) -> Any:
+        """The identified model (the fit's)."""
         return self.fit.model
 
     @property
     def delay(self) -> int:
+        """The sensor delay found by the identification, in samples (previewed by the feedforward)."""
         return self.fit.delay
 
     def describe(self) -> dict[str, Any]:
+        """The controller in plain data: model kind and structure, fit and hold-out errors, delay, gains."""
         m = self.model
         hold = self.fit.info.get("holdout", {})
         return {

@@ -28,9 +28,11 @@ class Plant(Protocol):
 
     dt: float
 
-    def reset(self) -> None: ...
+    def reset(self) -> None:
+        """Bring the plant to rest (the start of a run)."""
 
-    def step(self, u: float) -> float: ...
+    def step(self, u: float) -> float:
+        """Apply the command ``u`` (V) for one sample; return the measured displacement (µm)."""
 
 
 def check_plant(plant: Any) -> float:

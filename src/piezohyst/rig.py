@@ -119,10 +119,12 @@ class RigSettings:
         return g
 
     def to_dict(self) -> dict[str, Any]:
+        """The settings as plain data (what ``--rig-settings`` files hold)."""
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "RigSettings":
+        """Settings from plain data; unknown names are refused, missing ones take their defaults."""
         names = {f.name for f in fields(cls)}
         unknown = set(d) - names
         if unknown:

@@ -97,25 +97,31 @@ class TrackingResult:
 
     @property
     def error(self) -> FloatArray:
+        """``output - reference``, µm, every sample."""
         return self.output - self.reference
 
     @property
     def e_max(self) -> float:
+        """The largest absolute error over the scored samples, µm."""
         return self.metrics.e_max
 
     @property
     def e_max_percent(self) -> float:
+        """``e_max`` as a percentage of the reference's span."""
         return self.metrics.e_max_percent
 
     @property
     def rmse(self) -> float:
+        """The RMS error over the scored samples, µm."""
         return self.metrics.rmse
 
     @property
     def rmse_percent(self) -> float:
+        """``rmse`` as a percentage of the reference's span."""
         return self.metrics.rmse_percent
 
     def summary(self) -> dict[str, Any]:
+        """The figures of merit and the run's settings as plain data (JSON-ready)."""
         return {"label": self.label, "e_max_um": self.e_max, "e_max_percent": self.e_max_percent,
                 "rmse_um": self.rmse, "rmse_percent": self.rmse_percent, "span_um": self.metrics.span,
                 "evaluated_samples": self.metrics.samples, "clipped_samples": self.clipped, **{

@@ -150,6 +150,7 @@ class PaperExperiment:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        """Everything measured as plain data: what ``piezohyst reproduce`` writes to results.json."""
         return {
             "seed": self.seed, "plant": self.plant_description, "freqs_hz": list(self.freqs),
             "reference_um": list(self.reference_range),

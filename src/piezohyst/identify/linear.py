@@ -98,10 +98,12 @@ class Structure:
 
     @property
     def rate_dependent(self) -> bool:
+        """True when the structure has an input lag or output lags."""
         return bool(self.taus) or self.input_tau > 0
 
     @property
     def kind(self) -> str:
+        """The model kind this structure fits (``"asymmetric-pi"``, ``"rate-dependent"``, ...)."""
         if self.map_knots:
             return "asymmetric-pi"
         if self.rate_dependent:
@@ -109,6 +111,7 @@ class Structure:
         return "prandtl-ishlinskii" if self.static == "pi" else "preisach"
 
     def label(self) -> str:
+        """A one-line description (static part, size, lags, delay), as the candidates tables show."""
         name = {"pi": f"P-I n={self.size}" + (" (eq. 4 thresholds)" if self.thresholds == "eq4" else ""),
                 "preisach": f"Preisach {self.size} levels"}[self.static]
         if self.map_knots:
@@ -122,6 +125,7 @@ class Structure:
         return "; ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
+        """The structure as plain data (times in s, delay in samples)."""
         return {"static": self.static, "size": self.size, "map_knots": self.map_knots,
                 "taus_s": list(self.taus), "input_tau_s": self.input_tau, "delay": self.delay,
                 "thresholds": self.thresholds}

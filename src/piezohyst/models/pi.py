@@ -193,6 +193,7 @@ class PrandtlIshlinskii:
 
     @classmethod
     def from_dict(cls, params: dict[str, Any]) -> "PrandtlIshlinskii":
+        """Rebuild the model from :meth:`to_dict`'s data."""
         return cls(thresholds=params["thresholds"], weights=params["weights"],
                    initial_state=params.get("initial_state"), offset=params.get("offset", 0.0),
                    input_offset=params.get("input_offset", 0.0))

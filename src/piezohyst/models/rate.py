@@ -145,6 +145,7 @@ class RateDependent:
 
     @property
     def is_invertible(self) -> bool:
+        """True when the smallest slope of any branch, lags included, is positive (a stable inverse)."""
         return bool(self.static.is_invertible or self.min_slope > 0) and self.min_slope > 0
 
     @property
@@ -182,9 +183,11 @@ class RateDependent:
         return y
 
     def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The output in µm (the protocol's common unit; the same as :meth:`simulate`)."""
         return self.simulate(u, dt)
 
     def stepper(self, dt: float | None = None) -> "RateDependentStepper":
+        """A streaming evaluator: ``s.step(u_k)`` gives ``y(k)``, on the same kernel."""
         check_dt(dt, self.dt, self.kind)
         return RateDependentStepper(self)
 
@@ -200,11 +203,13 @@ class RateDependent:
 
     # -- files -----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
+        """The parameters as plain data: the nested static model, lags (s), weights, dt, input lag."""
         return {"static": nested_to_dict(self.static), "taus": self.taus.tolist(),
                 "lag_weights": self.lag_weights.tolist(), "dt": self.dt, "input_tau": self.input_tau}
 
     @classmethod
     def from_dict(cls, params: dict[str, Any]) -> "RateDependent":
+        """Rebuild the model from :meth:`to_dict`'s data."""
         static = nested_from_dict(params["static"], "the static part of a rate-dependent model")
         return cls(static=static, taus=params.get("taus", []), lag_weights=params.get("lag_weights", []),
                    dt=params["dt"], input_tau=params.get("input_tau", 0.0))
