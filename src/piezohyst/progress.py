@@ -306,6 +306,9 @@ class _Terminal:
                                 TimeElapsedColumn(), console=Console(stderr=True), transient=True)
         self.task = self.bar.add_task(p.text(with_time=False), total=p.counter.total)
         self.bar.start()  # raises rich's LiveError if another live display is running
+        import atexit
+
+        atexit.register(p.close)  # a display never closed still gives the terminal back
 
     def draw(self) -> None:  # the elapsed time has its own column
         self.bar.update(self.task, description=self.p.text(with_time=False), completed=self.p.counter.completed)
