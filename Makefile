@@ -7,8 +7,9 @@ STAMP  := $(VENV)/.installed
 OUT    ?= piezohyst-out
 
 DOCS_STAMP := $(VENV)/.installed-docs
+LINT_STAMP := $(VENV)/.installed-lint
 
-.PHONY: demo test bench docs clean setup
+.PHONY: demo test bench docs lint clean setup
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +21,10 @@ $(DOCS_STAMP): pyproject.toml $(STAMP)
 	$(PY) -m pip install --quiet -e ".[docs]"
 	touch $(DOCS_STAMP)
 
+$(LINT_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install --quiet -e ".[dev]"
+	touch $(LINT_STAMP)
+
 setup: $(STAMP)
 
 demo: $(STAMP)
@@ -30,6 +35,11 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/run.py
+
+# ruff (rules in pyproject.toml) and mypy, from the dev extra
+lint: $(LINT_STAMP)
+	$(PY) -m ruff check src tests
+	$(PY) -m mypy src
 
 # the documentation site in site/ (index.html), warnings as errors
 docs: $(DOCS_STAMP)

@@ -202,7 +202,7 @@ def plot_fit(u: Any, y: Any, y_model: Any, *, t: Any = None, dt: float | None = 
         ts = as_signal("t", t)
         tlabel = "time (s)"
     elif dt is not None:
-        ts = np.arange(us.size) * float(dt)
+        ts = np.arange(us.size, dtype=np.float64) * float(dt)
         tlabel = "time (s)"
     else:
         ts = np.arange(us.size, dtype=float)
@@ -295,8 +295,8 @@ def plot_tracking(t: Any, reference: Any, output: Any, *, command: Any = None, s
         import matplotlib.pyplot as plt
 
         fig = plt.figure(figsize=(10.0, 6.4 if u is not None else 5.2), layout="constrained")
-        rows = [["time", "xy"], ["error", "xy"]] + ([["command", "xy"]] if u is not None else [])
-        m = fig.subplot_mosaic(rows, width_ratios=[1.9, 1])
+        m = fig.subplot_mosaic([["time", "xy"], ["error", "xy"], ["command", "xy"]] if u is not None
+                               else [["time", "xy"], ["error", "xy"]], width_ratios=[1.9, 1])
         for k in ("error", "command"):
             if k in m:
                 m[k].sharex(m["time"])

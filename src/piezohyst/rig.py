@@ -129,7 +129,7 @@ class RigSettings:
         unknown = set(d) - names
         if unknown:
             raise ValueError(f"unknown rig setting(s) {sorted(unknown)}; the settings are {sorted(names)}")
-        conv = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}
+        conv: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}
         return cls(**conv)
 
 
@@ -287,7 +287,7 @@ class VirtualRig:
             )
         meta = {"source": "VirtualRig", "seed": self.seed, "clipped_samples": clipped,
                 "rig": self.settings.to_dict()}
-        return Dataset(np.arange(x.size) * self.dt, x, y, meta)
+        return Dataset(np.arange(x.size, dtype=np.float64) * self.dt, x, y, meta)
 
     def __repr__(self) -> str:
         s = self.settings

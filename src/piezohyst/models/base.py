@@ -88,6 +88,8 @@ def register_kind(name: str, *aliases: str) -> Callable[[type[T]], type[T]]:
         if name in _KINDS and _KINDS[name] is not cls:
             raise ValueError(f"model kind {name!r} is registered twice")
         cls.kind = name  # type: ignore[attr-defined]
+        if not hasattr(cls, "_repr_html_"):  # every kind shows as a table in Jupyter
+            cls._repr_html_ = model_html  # type: ignore[attr-defined]
         _KINDS[name] = cls
         for a in (name, *aliases):
             _ALIASES[a] = name
@@ -106,7 +108,7 @@ def kind_names_and_aliases() -> list[str]:
     return sorted(_ALIASES)
 
 
-def kind_class(name: str) -> type:
+def kind_class(name: str) -> type[Any]:
     """The class registered as ``name`` (or an alias of it)."""
     key = _ALIASES.get(str(name).strip().lower())
     if key is None:

@@ -323,6 +323,7 @@ class BoucWen:
         return BoucWenStepper(self, dt, hold=hold)
 
     # -- the model protocol (piezohyst.models.base) ---------------------------------------------
+    kind: ClassVar[str]
     output_unit: ClassVar[str] = "m"
     dynamic: ClassVar[bool] = True
     is_invertible: ClassVar[bool] = True  # eq. (10) solves for the command at every sample

@@ -97,7 +97,7 @@ class PrandtlIshlinskii:
 
     thresholds: FloatArray
     weights: FloatArray
-    initial_state: FloatArray = field(default=None)  # type: ignore[assignment]
+    initial_state: FloatArray = field(default=None)  # type: ignore[arg-type]  # None: zeros, set in __post_init__
     offset: float = 0.0
     input_offset: float = 0.0
 
@@ -195,7 +195,8 @@ class PrandtlIshlinskii:
     def from_dict(cls, params: dict[str, Any]) -> "PrandtlIshlinskii":
         """Rebuild the model from :meth:`to_dict`'s data."""
         return cls(thresholds=params["thresholds"], weights=params["weights"],
-                   initial_state=params.get("initial_state"), offset=params.get("offset", 0.0),
+                   initial_state=params.get("initial_state"),  # type: ignore[arg-type]  # None: zeros
+                   offset=params.get("offset", 0.0),
                    input_offset=params.get("input_offset", 0.0))
 
     def with_extra_slope(self, kappa: float) -> "PrandtlIshlinskii":
