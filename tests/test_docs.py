@@ -88,15 +88,19 @@ def _example_parameters(kind: str) -> list[str]:
     import numpy as np
 
     from piezohyst.models.asymmetric_pi import OutputMap
+    from piezohyst.models.preisach import grid_size
 
     pi = ph.PrandtlIshlinskii(ph.equal_thresholds(3, 10.0), np.full(3, 0.1))
-    example = {
+    examples = {
         "prandtl-ishlinskii": pi,
         "bouc-wen": ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072),
         "rate-dependent": ph.RateDependent(static=pi, taus=[0.01], lag_weights=[0.01], dt=1e-3),
         "asymmetric-pi": ph.AsymmetricPI(pi, OutputMap(knots=[0.2], coefficients=[0.1], centre=0.5)),
-        "preisach": ph.Preisach(lo=0.0, hi=1.0, weights=np.full(3, 0.1), slope=0.1),
-    }[kind]
+        "preisach": ph.Preisach(lo=0.0, hi=1.0, weights=np.full(grid_size(2), 0.1), slope=0.1),
+    }
+    if kind not in examples:  # a kind without an example here: only its name is checked
+        return []
+    example = examples[kind]
     keys = []
     for key, value in example.to_dict().items():
         keys.append(key)

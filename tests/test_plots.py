@@ -17,6 +17,7 @@ from piezohyst import plots  # noqa: E402
 from piezohyst._fileio import OverwriteRefused  # noqa: E402
 from piezohyst.control.tracking import TrackingResult  # noqa: E402
 from piezohyst.models.asymmetric_pi import OutputMap  # noqa: E402
+from piezohyst.models.preisach import grid_size  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
@@ -167,7 +168,7 @@ def _models():
         pi,
         ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072, gamma=0.0),
         ph.RateDependent(static=pi, taus=[0.01, 0.1], lag_weights=[0.001, 0.002], dt=1e-3),
-        ph.Preisach(lo=0.0, hi=10.0, weights=np.full(10, 0.1), slope=0.05),
+        ph.Preisach(lo=0.0, hi=10.0, weights=np.full(grid_size(4), 0.1), slope=0.05),
         ph.AsymmetricPI(pi, OutputMap(knots=[0.2, 0.9], coefficients=[0.1, -0.05], centre=0.5)),
     ]
 
