@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import piezohyst as ph  # noqa: E402
-from piezohyst import plots  # noqa: E402
+from piezohyst import plots, progress  # noqa: E402
 from piezohyst._fileio import OverwriteRefused  # noqa: E402
 from piezohyst.control.tracking import TrackingResult  # noqa: E402
 from piezohyst.models.asymmetric_pi import OutputMap  # noqa: E402
@@ -200,10 +200,10 @@ def test_progress_is_a_stage_callback_and_a_counter():
         p("first")
         p("second")
         p.advance(4, best=0.25)
-        assert ph.progress.active() is p
+        assert progress.active() is p
         assert "job | second | 4/10 (best 0.25)" in p.text()
         assert '<progress value="4" max="10"' in p.html()
-    assert p.closed and ph.progress.active() is None and "done in" in p.text()
+    assert p.closed and progress.active() is None and "done in" in p.text()
     with pytest.raises(ValueError, match="mode"):
         ph.Progress("x", mode="loud")
     with pytest.raises(ValueError, match="total"):
