@@ -12,7 +12,7 @@ from piezohyst.experiments.paper import FIGURES, run_paper_experiment
 def test_reproduce_writes_tables_figures_and_report(tmp_path, capsys):
     assert main(["reproduce", "--out", str(tmp_path), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
-    for table in ("table_I", "table_II"):
+    for table, name in (("table_I", "bouc-wen"), ("table_II", "pi")):
         rows = res[table]
         assert len(rows) == 6
         for r in rows:

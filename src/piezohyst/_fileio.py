@@ -51,7 +51,7 @@ def check_writable(path: str | os.PathLike[str], force: bool) -> Path:
     return p
 
 
-def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object], *, force: bool = False) -> Path:
+def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None], *, force: bool = False) -> Path:
     """Call ``write(tmp_path)`` then rename the temporary file onto ``path`` in one step.
 
     A crash or error part-way leaves the old file (or no file) in place, never half a file.

@@ -8,7 +8,7 @@ switch the on-disk cache off (e.g. on a read-only install).
 from __future__ import annotations
 
 import os
-from typing import Any, Callable, TypeVar, cast
+from typing import Any, Callable, TypeVar
 
 import numba
 
@@ -19,12 +19,12 @@ _CACHE = os.environ.get("PIEZOHYST_NO_CACHE", "") not in ("1", "true", "yes")
 
 def njit(func: F) -> F:
     """``numba.njit`` with the project's settings (cached, no Python fallback)."""
-    return cast(F, numba.njit(cache=_CACHE, nogil=True)(func))  # a dispatcher is called like func
+    return numba.njit(cache=_CACHE, nogil=True)(func)  # type: ignore[no-any-return]
 
 
 def njit_parallel(func: F) -> F:
     """As :func:`njit`, for kernels that spread independent work over cores with ``prange``."""
-    return cast(F, numba.njit(cache=_CACHE, nogil=True, parallel=True)(func))
+    return numba.njit(cache=_CACHE, nogil=True, parallel=True)(func)  # type: ignore[no-any-return]
 
 
 prange = numba.prange

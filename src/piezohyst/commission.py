@@ -143,7 +143,7 @@ class CommissionedController:
         ff = self.feedforward()
         pid = self.tuning.pid(dt) if (feedback and self.tuning is not None) else None
         d = self.delay
-        corr = np.zeros(per) if (learn and per is not None) else None
+        corr = np.zeros(per) if learn else None
         best_corr = corr
         best_rms = np.inf
         learning_on = learn
@@ -169,7 +169,7 @@ class CommissionedController:
             y[k] = yk
             watch.output(k, yk, y)
             y_prev = yk
-            if learn and per is not None and (k + 1) % per == 0:
+            if learn and (k + 1) % per == 0:
                 c0 = k + 1 - per
                 e = r[c0:k + 1] - y[c0:k + 1]
                 rms = float(np.sqrt(np.mean(e**2)))

@@ -41,7 +41,7 @@ def sinusoid(
     n = n_samples(freq, cycles, dt)
     if n < 2:
         raise ValueError(f"{cycles} cycle(s) of {freq} Hz at dt={dt} s is fewer than 2 samples")
-    t = np.arange(n, dtype=np.float64) * dt
+    t = np.arange(n) * dt
     if start == "low":
         shape = 0.5 * (1.0 - np.cos(2 * np.pi * freq * t))
     elif start == "mid":
@@ -53,7 +53,7 @@ def sinusoid(
 
 def time_vector(n: int, dt: float) -> FloatArray:
     """``t_k = k dt`` for ``k = 0..n-1``."""
-    return np.arange(int(n), dtype=np.float64) * float(dt)
+    return np.arange(int(n)) * float(dt)
 
 
 def estimate_period(x: object, *, min_corr: float = 0.95) -> int | None:

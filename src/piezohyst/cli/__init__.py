@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 from . import benchmark, compensate, identify, models, reproduce, rig, track
 from ._common import UsageError

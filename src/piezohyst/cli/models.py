@@ -9,8 +9,6 @@ from ._common import console, freqs, print_json
 
 
 def cmd_models(args: argparse.Namespace) -> int:
-    import numpy as np
-
     import piezohyst as ph
     from piezohyst import paper_values as pv
 
@@ -30,7 +28,7 @@ def cmd_models(args: argparse.Namespace) -> int:
     u = ph.sinusoid(1.0, 2, 0.0, 100.0, dt)
     y = pv.pi_model().simulate(u)
     inv_err = float(abs(inv.simulate(y) - u).max())
-    printed = ph.PrandtlIshlinskii(inv.thresholds, np.asarray(pv.PI_INVERSE_WEIGHTS_PRINTED))
+    printed = ph.PrandtlIshlinskii(inv.thresholds, pv.PI_INVERSE_WEIGHTS_PRINTED)
     printed_err = float(abs(printed.simulate(y) - u).max())
     bw = pv.bouc_wen_model()
     result = {

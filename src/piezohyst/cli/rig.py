@@ -33,7 +33,6 @@ def cmd_rig(args: argparse.Namespace) -> int:
         runs.append((f"{f:g} Hz", ds.u[-period:], ds.y[-period:]))
         columns.append((f, ds))
     if out is not None:
-        assert fig_path is not None and csv_path is not None  # set above when --out is given
         plots.use_headless_backend()
         lines = plots.plot_loops(runs, title=f"Virtual rig, open loop, {args.u_low:g}-{args.u_high:g} V sinusoids (cf. paper Fig. 2)")
         plots.save(lines[0].axes, fig_path, force=args.force)

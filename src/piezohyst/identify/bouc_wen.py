@@ -15,7 +15,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .._validation import FloatArray, as_scalar, as_signal
-from ..models.bouc_wen import BoucWen, Hold, bw_swarm_rmse
+from ..models.bouc_wen import BoucWen, bw_swarm_rmse
 from ..pso import pso_minimize
 from .result import FitResult, paired_signals as _pair
 
@@ -70,7 +70,7 @@ def fit_bouc_wen(
     u: Any, y: Any, dt: float, bounds: dict[str, tuple[float, float]] | None = None,
     seed: Any = 0, *, n_particles: int = 40, max_iter: int = 200, fit_offset: bool = True,
     delay: int = 0, polish: bool = True, stall_iter: int | None = None, progress: bool = False,
-    callback: Callable[..., Any] | None = None, hold: Hold = "foh",
+    callback: Callable[..., Any] | None = None, hold: str = "foh",
 ) -> FitResult:
     """Identify the Bouc-Wen model of eqs. (7)-(8) with PSO, fitness eq. (9) (paper Sec. III-B).
 
@@ -151,7 +151,7 @@ def fit_bouc_wen(
     # the offset that eq. (9) was minimised over
     params = dict(zip(BW_NAMES, (float(v) for v in theta)))
     model0 = BoucWen(**params)
-    offset = float(np.mean(y_m - model0.simulate(us, dt, hold=hold))) if fit_offset else 0.0
+    offset = float(np.mean(y_m - model0.simulate(us, dt, hold=hold))) if fit_offset else 0.0  # type: ignore[arg-type]
     model = BoucWen(**params, offset=offset)
     sens = _bw_sensitivity(theta, rmse, nat_lo, nat_hi, us, y_m, dt, foh, fit_offset)
     info["polished_rmse"] = rmse if polish else None

@@ -39,7 +39,7 @@ from .._validation import FloatArray
 from ..models.asymmetric_pi import AsymmetricPI, OutputMap
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
 from ..models.play import play_outputs
-from ..models.preisach import Preisach, demagnetised_state, grid_thresholds, preisach_outputs
+from ..models.preisach import Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs
 from ..models.rate import RateDependent, first_order_lag, lag_factor
 from .lsq import bounded_lstsq_gram
 from .result import FitResult
@@ -181,7 +181,7 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
     ref = u if u_ref is None else u_ref
     if st.rate_dependent and dt is None:
         raise ValueError("a rate-dependent structure needs the sample period dt")
-    b = lag_factor(st.input_tau, dt) if (st.input_tau and dt is not None) else 0.0  # dt checked above
+    b = lag_factor(st.input_tau, dt) if st.input_tau else 0.0
     v = first_order_lag(u, b) if b else np.array(u, dtype=np.float64)
     v_ref = first_order_lag(ref, b) if b else np.asarray(ref, dtype=np.float64)
     info: dict[str, Any] = {}
@@ -205,7 +205,7 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
         static_cols = preisach_outputs(np.ascontiguousarray(v), a, bb, 1.0 / d, z0)
         floor = np.array(v, dtype=np.float64)
         info["grid"] = (lo, hi)
-    a_lag = np.exp(-dt / np.asarray(st.taus, dtype=np.float64)) if (st.taus and dt is not None) else np.zeros(0)
+    a_lag = np.exp(-dt / np.asarray(st.taus, dtype=np.float64)) if st.taus else np.zeros(0)
     p, m = static_cols.shape[1], a_lag.size
     base = np.empty((u.size, p + m + 2))
     base[:, :p] = static_cols
@@ -254,7 +254,7 @@ def _decode_map(tau: FloatArray, knots: FloatArray, centre: float) -> OutputMap:
             prev = t
             i += 1
     ks = np.sort(knots)
-    return OutputMap(ks, np.array([phi_by_knot[float(k)] for k in ks]), centre)
+    return OutputMap(ks, [phi_by_knot[float(k)] for k in ks], centre)
 
 
 def map_knots_for(y: FloatArray, count: int) -> tuple[FloatArray, float]:
