@@ -151,10 +151,14 @@ def test_site_builds_with_warnings_as_errors(tmp_path):
     shutil.rmtree(site)
 
 
-def test_importing_a_module_does_not_hide_the_public_name_it_defines():
-    # `import piezohyst.commission` sets the package attribute `commission`; ph.commission must stay the function
-    code = ("import piezohyst.commission, piezohyst as ph; "
-            "assert callable(ph.commission) and ph.commission.__name__ == 'commission', ph.commission")
+def test_importing_a_submodule_does_not_hide_a_public_name():
+    # `import piezohyst.X` sets the package attribute X to the module; a public name X (lazy) must win
+    modules = {info.name for info in pkgutil.iter_modules(ph.__path__)}
+    clashes = sorted(set(ph._LAZY) & modules)
+    code = ("import importlib, types, piezohyst as ph\n"
+            f"for n in {clashes!r}:\n"
+            "    importlib.import_module('piezohyst.' + n)\n"
+            "    assert not isinstance(getattr(ph, n), types.ModuleType), n\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           env={**os.environ, "PYTHONPATH": str(Path(ph.__file__).parent.parent)})
     assert proc.returncode == 0, proc.stderr
