@@ -6,16 +6,21 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 OUT    ?= piezohyst-out
 
-DOCS_STAMP := $(VENV)/.installed-docs
-LINT_STAMP := $(VENV)/.installed-lint
-
-.PHONY: demo test bench docs lint clean setup
+.PHONY: demo test bench clean setup
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[test,bench,notebooks]"
 	touch $(STAMP)
+
+setup: $(STAMP)
+
+# the documentation site in site/ (index.html), warnings as errors; and ruff (rules in
+# pyproject.toml) and mypy. Each installs its extra into the same .venv.
+DOCS_STAMP := $(VENV)/.installed-docs
+LINT_STAMP := $(VENV)/.installed-lint
+.PHONY: docs lint
 
 $(DOCS_STAMP): pyproject.toml $(STAMP)
 	$(PY) -m pip install --quiet -e ".[docs]"
@@ -25,7 +30,12 @@ $(LINT_STAMP): pyproject.toml $(STAMP)
 	$(PY) -m pip install --quiet -e ".[dev]"
 	touch $(LINT_STAMP)
 
-setup: $(STAMP)
+docs: $(DOCS_STAMP)
+	$(PY) -m mkdocs build --strict --site-dir site
+
+lint: $(LINT_STAMP)
+	$(PY) -m ruff check src tests
+	$(PY) -m mypy src
 
 demo: $(STAMP)
 	$(VENV)/bin/piezohyst reproduce --out $(OUT) --force
@@ -35,15 +45,6 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/run.py
-
-# ruff (rules in pyproject.toml) and mypy, from the dev extra
-lint: $(LINT_STAMP)
-	$(PY) -m ruff check src tests
-	$(PY) -m mypy src
-
-# the documentation site in site/ (index.html), warnings as errors
-docs: $(DOCS_STAMP)
-	$(PY) -m mkdocs build --strict --site-dir site
 
 clean:
 	rm -rf $(VENV) $(OUT) build site src/*.egg-info .pytest_cache

@@ -38,10 +38,11 @@ _LAZY: dict[str, str] = {
     "PrandtlIshlinskii": "models", "RateDependent": "models", "RateDependentPI": "models",
     "equal_thresholds": "models", "play_operator": "models", "kinds": "models",
     "ModelFileError": "modelio", "load_model": "modelio", "save_model": "modelio",
-    "PSOResult": "pso", "pso_minimize": "pso", "Progress": "progress",
+    "PSOResult": "pso", "pso_minimize": "pso",
     "Plant": "plant", "open_loop": "plant",
     "ClippingWarning": "rig", "RigSettings": "rig", "VirtualRig": "rig",
     "estimate_period": "signals", "sinusoid": "signals",
+    "Progress": "progress",
 }
 _SUBMODULES = ("signals", "models", "identify", "control", "data", "modelio", "plots", "experiments")
 
@@ -94,7 +95,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
                          OutputMap, PIStepper, PrandtlIshlinskii, Preisach, RateDependent, RateDependentPI,
                          equal_thresholds, kinds, play_operator)
     from .plant import Plant, open_loop  # noqa: F401
-    from .progress import Progress  # noqa: F401
     from .pso import PSOResult, pso_minimize  # noqa: F401
     from .rig import ClippingWarning, RigSettings, VirtualRig  # noqa: F401
     from .signals import estimate_period, sinusoid  # noqa: F401
+    from .progress import Progress  # noqa: F401

@@ -98,3 +98,14 @@ def block(title: str, *parts: str) -> str:
     """A titled block holding HTML parts."""
     return (f'<div class="piezohyst-repr"><div style="font-weight:bold">{html.escape(title)}</div>'
             + "".join(parts) + "</div>")
+
+
+def model_html(model: Any) -> str:
+    """An HTML summary of a model (every kind's ``_repr_html_``): kind, units, invertibility,
+    and its parameters as its model file holds them (nested models as inner tables)."""
+    name = type(model).__name__
+    kind = getattr(type(model), "kind", name)
+    rows = [("kind", kind), ("output unit", getattr(model, "output_unit", "um").replace("um", "µm")),
+            ("invertible", bool(getattr(model, "is_invertible", False))),
+            ("needs dt (dynamic)", bool(getattr(model, "dynamic", False)))]
+    return block(f"{name} model", table(rows), parameters(model.to_dict()))

@@ -52,4 +52,4 @@ def open_loop(plant: Any, u: Any) -> Dataset:
     x = as_signal("u", u)
     plant.reset()
     y = np.array([float(plant.step(v)) for v in x])
-    return Dataset(np.arange(x.size, dtype=np.float64) * dt, x, y, {"source": type(plant).__name__})
+    return Dataset(np.arange(x.size) * dt, x, y, {"source": type(plant).__name__})

@@ -341,8 +341,8 @@ def track(
         y_prev = yk
     clipped = None
     if clipped0 is not None:
-        clipped = int(plant.clipped) - (0 if reset else int(clipped0))
-    return TrackingResult(t=np.arange(n, dtype=np.float64) * dt, reference=r, output=y, command=u,
+        clipped = int(getattr(plant, "clipped")) - (0 if reset else int(clipped0))
+    return TrackingResult(t=np.arange(n) * dt, reference=r, output=y, command=u,
                           period=period if period is not None else estimate_period(r),
                           clipped=clipped, label=label,
                           info={"feedback_at": feedback_at if feedback is not None else None})

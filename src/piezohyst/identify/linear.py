@@ -125,7 +125,6 @@ class Structure:
         return "; ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
-        """The structure as plain data (times in s, delay in samples)."""
         return {"static": self.static, "size": self.size, "map_knots": self.map_knots,
                 "taus_s": list(self.taus), "input_tau_s": self.input_tau, "delay": self.delay,
                 "thresholds": self.thresholds}

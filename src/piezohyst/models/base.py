@@ -89,6 +89,8 @@ def register_kind(name: str, *aliases: str) -> Callable[[type[T]], type[T]]:
             raise ValueError(f"model kind {name!r} is registered twice")
         cls.kind = name  # type: ignore[attr-defined]
         if not hasattr(cls, "_repr_html_"):  # every kind shows as a table in Jupyter
+            from .._html import model_html
+
             cls._repr_html_ = model_html  # type: ignore[attr-defined]
         _KINDS[name] = cls
         for a in (name, *aliases):
@@ -248,15 +250,3 @@ class Compensator:
         """The output limits: ``u_range`` (V) and ``max_slew`` (V per sample)."""
         return {"u_range": list(self.u_range) if self.u_range else None, "max_slew": self.max_slew}
 
-
-def model_html(model: Any) -> str:
-    """An HTML summary of a model (every kind's ``_repr_html_``): kind, units, invertibility,
-    and its parameters as its model file holds them (nested models as inner tables)."""
-    from .. import _html
-
-    name = type(model).__name__
-    kind = getattr(type(model), "kind", name)
-    rows = [("kind", kind), ("output unit", getattr(model, "output_unit", "um").replace("um", "µm")),
-            ("invertible", bool(getattr(model, "is_invertible", False))),
-            ("needs dt (dynamic)", bool(getattr(model, "dynamic", False)))]
-    return _html.block(f"{name} model", _html.table(rows), _html.parameters(model.to_dict()))

@@ -357,7 +357,7 @@ class BoucWen:
 
     def _repr_html_(self) -> str:
         """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
-        from .base import model_html
+        from .._html import model_html
 
         return model_html(self)
 

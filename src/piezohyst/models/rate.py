@@ -222,7 +222,7 @@ class RateDependent:
 
     def _repr_html_(self) -> str:
         """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
-        from .base import model_html
+        from .._html import model_html
 
         return model_html(self)
 
