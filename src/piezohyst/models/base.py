@@ -249,4 +249,3 @@ class Compensator:
     def settings(self) -> dict[str, Any]:
         """The output limits: ``u_range`` (V) and ``max_slew`` (V per sample)."""
         return {"u_range": list(self.u_range) if self.u_range else None, "max_slew": self.max_slew}
-
