@@ -11,10 +11,31 @@ OUT    ?= piezohyst-out
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test,bench,fleet,control,formats]"
+	$(PY) -m pip install --quiet -e ".[test,bench,fleet,control,formats,notebooks,docs]"
 	touch $(STAMP)
 
 setup: $(STAMP)
+
+# the documentation site in site/ (index.html), warnings as errors; and ruff (rules in
+# pyproject.toml) and mypy. Each installs its extra into the same .venv.
+DOCS_STAMP := $(VENV)/.installed-docs
+LINT_STAMP := $(VENV)/.installed-lint
+.PHONY: docs lint
+
+$(DOCS_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install --quiet -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+$(LINT_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install --quiet -e ".[dev]"
+	touch $(LINT_STAMP)
+
+docs: $(DOCS_STAMP)
+	$(PY) -m mkdocs build --strict --site-dir site
+
+lint: $(LINT_STAMP)
+	$(PY) -m ruff check src tests
+	$(PY) -m mypy src
 
 demo: $(STAMP)
 	$(VENV)/bin/piezohyst reproduce --out $(OUT) --force
@@ -31,4 +52,4 @@ bench-readme:
 	$(PY) benchmarks/readme_table.py
 
 clean:
-	rm -rf $(VENV) $(OUT) build src/*.egg-info .pytest_cache
+	rm -rf $(VENV) $(OUT) build site src/*.egg-info .pytest_cache

@@ -462,7 +462,9 @@ def test_debug_anywhere_shows_the_traceback(capsys):
 
     with pytest.raises(SystemExit):
         main(["--debug", "models", "--freq", "nan"])
-    with pytest.raises(Exception):
+    from piezohyst.cli._common import UsageError
+
+    with pytest.raises(UsageError, match="settings.json: no such file"):
         main(["rig", "--freq", "1", "--cycles", "1", "--rig-settings", "/no/such/settings.json", "--debug"])
 
 

@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 import piezohyst as ph
+from piezohyst.models import play as P
 
 
 def reference_play(x, r, y0):
@@ -65,7 +66,6 @@ def test_refuses_2d():
 
 
 # -- the event-driven P-I kernel against the dense loop ------------------------------------------
-from piezohyst.models import play as P
 
 
 @st.composite

@@ -21,7 +21,7 @@ def test_reproduce_writes_tables_figures_and_report(tmp_path, capsys):
     # error (ratio seen <= 0.5) and the Bouc-Wen feedforward's error must grow with frequency
     # (ratio 5 Hz / 1 Hz seen >= 4).
     ff_max = {"table_I": 0.08, "table_II": 0.1}
-    for table, name in (("table_I", "bouc-wen"), ("table_II", "pi")):
+    for table in ("table_I", "table_II"):
         rows = res[table]
         assert len(rows) == 6
         by = {(r["freq_hz"], r["feedback"]): r for r in rows}

@@ -18,9 +18,11 @@ with a submodule (importing the submodule would replace the function on the pack
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 from typing import TYPE_CHECKING, Any
 
-from ._version import __version__
+from ._version import __version__ as __version__  # re-exported
 
 #: public name -> the module that defines it
 _LAZY: dict[str, str] = {
@@ -43,6 +45,7 @@ _LAZY: dict[str, str] = {
     "GuardedPlant": "plant",
     "ClippingWarning": "rig", "RigSettings": "rig", "VirtualRig": "rig",
     "estimate_period": "signals", "sinusoid": "signals",
+    "Progress": "progress",
 }
 _SUBMODULES = ("signals", "models", "identify", "control", "data", "modelio", "plots", "experiments", "export",
                "fleet")
@@ -65,6 +68,23 @@ def __dir__() -> list[str]:
     return __all__
 
 
+class _Package(types.ModuleType):
+    """The package module, so that importing a submodule cannot hide the public name it defines.
+
+    Importing ``piezohyst.commission`` (the module) sets the package's attribute ``commission``
+    to that module; ``ph.commission(plant)`` would then fail. The public name wins.
+    """
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if (name in _LAZY and isinstance(value, types.ModuleType)
+                and value.__name__ == f"{__name__}.{name}" and hasattr(value, name)):
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
+
+
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from . import control, data, experiments, export, fleet, identify, modelio, models, plots, signals  # noqa: F401
     from .analysis import LoopFigures, loop_figures  # noqa: F401
@@ -82,3 +102,4 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .pso import PSOResult, pso_minimize  # noqa: F401
     from .rig import ClippingWarning, RigSettings, VirtualRig  # noqa: F401
     from .signals import estimate_period, sinusoid  # noqa: F401
+    from .progress import Progress  # noqa: F401

@@ -211,7 +211,7 @@ def _publish_file(tmp: Path, p: Path, force: bool) -> None:
     tmp.unlink()
 
 
-def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None], *, force: bool = False) -> Path:
+def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object], *, force: bool = False) -> Path:
     """Call ``write(tmp_path)``, then move the temporary file to ``path`` in one step.
 
     A crash or an error part-way leaves the old file (or no file) in place, never half a file,

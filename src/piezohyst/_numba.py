@@ -73,12 +73,12 @@ def _private_cache_dir() -> str | None:
 def _cache_dir(path: str) -> Iterator[None]:
     """numba's CACHE_DIR set while our kernels are decorated (their locator keeps the path),
     then restored: other libraries' kernels are not moved."""
-    old = numba.config.CACHE_DIR
-    numba.config.CACHE_DIR = path
+    old = numba.config.CACHE_DIR  # type: ignore[attr-defined]  # set by numba at import, not declared
+    numba.config.CACHE_DIR = path  # type: ignore[attr-defined]
     try:
         yield
     finally:
-        numba.config.CACHE_DIR = old
+        numba.config.CACHE_DIR = old  # type: ignore[attr-defined]
 
 
 def _compile(func: F, **opts: Any) -> F:

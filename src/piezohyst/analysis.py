@@ -25,6 +25,7 @@ class LoopFigures:
 
     @property
     def width_percent(self) -> float:
+        """The width as a percentage of the span (the paper's 10-15 %)."""
         return 100.0 * self.width / self.span if self.span > 0 else float("nan")
 
 
@@ -47,6 +48,12 @@ def loop_figures(u: object, y: object, *, period: int | None = None) -> LoopFigu
     period : int, optional
         The period in samples; estimated from ``u`` when omitted.
 
+    Returns
+    -------
+    LoopFigures
+
+    Notes
+    -----
     Each branch is a local straight-line fit over +-2 % of the input range around mid-range, so
     sensor noise does not decide the figure.
     """

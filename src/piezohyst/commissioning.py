@@ -65,7 +65,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -173,10 +173,12 @@ class CommissionedController:
 
     @property
     def model(self) -> Any:
+        """The identified model (the fit's)."""
         return self.fit.model
 
     @property
     def delay(self) -> int:
+        """The sensor delay found by the identification, in samples (previewed by the feedforward)."""
         return self.fit.delay
 
     @property
@@ -191,6 +193,7 @@ class CommissionedController:
         return self.limits
 
     def describe(self) -> dict[str, Any]:
+        """The controller in plain data: model kind and structure, fit and hold-out errors, delay, gains."""
         m = self.model
         hold = self.fit.info.get("holdout", {})
         return {
@@ -393,7 +396,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
                excitation: Any = None, tune: bool = True, learning_gain: float = 0.5,
                max_step_fraction: float = MAX_STEP_FRACTION, u_rest: float | None = None,
                tuning: SafeTuningOptions | None = None, kinds: Sequence[str] = COMMISSION_KINDS,
-               max_plays: int = 8) -> CommissionedController:
+               max_plays: int = 8, progress: Callable[[str], None] | None = None) -> CommissionedController:
     """Identify ``plant`` and build its controller, safely (module docstring).
 
     Parameters
@@ -427,6 +430,9 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         The model kinds to choose from.
     max_plays : int
         On a buffered plant, the most plays learning uses per ``track``.
+    progress : callable, optional
+        Called with a short description before each stage (and passed on to
+        :func:`~piezohyst.identify.fit_model`); a :class:`~piezohyst.Progress` shows them.
 
     Returns
     -------
@@ -453,6 +459,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
                 f"per sample, max_step_fraction={max_step_fraction:g}, from the rest command {limits.rest:g} V); "
                 "ramp it or change the limits")
     guard = GuardedPlant(plant, limits)
+    say = progress or (lambda s: None)
+    say(f"identification run ({cmd.size * dt:.3g} s)")
     if mode == "step":
         guard.reset()
         if hasattr(plant, "excite"):  # compiled whole run (the VirtualRig), the same commands
@@ -467,9 +475,10 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     ident_counts = guard.counts()
     if n_id is not None:
         # fit on the identification part, choose on the rest; the winner is refitted on all of it
-        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, holdout=int(ds.u.size - n_id))
+        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, holdout=int(ds.u.size - n_id),
+                        progress=progress)
     else:
-        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n)
+        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, progress=progress)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain,
                                  limits=limits, max_plays=max_plays)
     tune_counts = None
@@ -477,6 +486,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         ctl.info["held_command"] = guard.last
         ctl.info["feedback"] = NO_LOOP
     elif tune:
+        say("tuning the integral feedback on the plant (bounded experiments)")
         level = float(np.median(ds.y))
         tguard = GuardedPlant(plant, limits)
         ctl.tuning = tune_integral_safely(tguard, ctl.feedforward(), ctl.model, delay=ctl.delay, level=level,

@@ -240,6 +240,7 @@ class FitOptions:
         return {"u_col": self.u_col, "y_col": self.y_col, "t_col": self.t_col, "fs": self.fs}
 
     def to_dict(self) -> dict[str, Any]:
+        """The options as plain data (the fleet's result records them)."""
         return asdict(self)
 
 

@@ -55,9 +55,11 @@ class Plant(Protocol):
 
     dt: float
 
-    def reset(self) -> None: ...
+    def reset(self) -> None:
+        """Bring the plant to rest (the start of a run)."""
 
-    def step(self, u: float) -> float: ...
+    def step(self, u: float) -> float:
+        """Apply the command ``u`` (V) for one sample; return the measured displacement (µm)."""
 
 
 @runtime_checkable
@@ -73,7 +75,9 @@ class BufferedPlant(Protocol):
 
     dt: float
 
-    def play(self, u: FloatArray) -> FloatArray: ...
+    def play(self, u: FloatArray) -> FloatArray:
+        """Apply the command table ``u`` (V, one value per ``dt``); return the measured displacement (µm)."""
+        ...
 
 
 def plant_mode(plant: Any) -> str:
@@ -185,6 +189,7 @@ class CommandLimits:
 
     @property
     def span(self) -> float:
+        """The width of the range, ``high - low``, V."""
         return self.high - self.low
 
     def ramp_length(self, delta: float, dt: float, *, share: float = 0.5) -> int:
@@ -202,6 +207,7 @@ class CommandLimits:
         return start + (end - start) * 0.5 * (1.0 - np.cos(np.pi * k))
 
     def to_dict(self) -> dict[str, float]:
+        """The limits as plain data (V)."""
         return {"u_low_V": self.low, "u_high_V": self.high, "max_step_V": self.max_step,
                 "max_step_fraction": self.max_step / self.span, "u_rest_V": self.rest}
 
@@ -240,6 +246,7 @@ class GuardedPlant:
 
     @property
     def u_range(self) -> tuple[float, float]:
+        """The guarded range ``(low, high)``, V."""
         return (self.limits.low, self.limits.high)
 
     def reset(self) -> None:
@@ -298,6 +305,7 @@ class GuardedPlant:
         return self.play(table) if table.size else np.empty(0)
 
     def counts(self) -> dict[str, Any]:
+        """What the guard counted: commands sent, clipped to the range, slowed to the step limit, the largest step sent (V)."""
         return {"commands_sent": self.sent, "clipped": self.clipped, "slew_limited": self.slew_limited,
                 "largest_step_V": self.largest_step, **self.limits.to_dict()}
 

@@ -199,7 +199,7 @@ def pso_minimize(
     ftol: float = 0.0,
     velocity_clamp: float = 0.5,
     init: Any = None,
-    progress: bool = False,
+    progress: Any = False,
     description: str = "PSO",
     polish: bool = False,
 ) -> PSOResult:
@@ -231,8 +231,11 @@ def pso_minimize(
         Velocities are limited to this fraction of each dimension's range.
     init : array_like, optional
         Positions for the first particles (e.g. a previous solution); the rest are random.
-    progress : bool
-        Show a progress bar (rich) on stderr.
+    progress : bool or Progress
+        True: show the iterations and the best fitness in a :class:`~piezohyst.Progress` display
+        (a Jupyter cell's output, or a line on a terminal's standard error). A ``Progress``:
+        show them in that display. Either way, while another ``Progress`` is open (say, the one
+        given to :func:`~piezohyst.identify.fit_model`), the iterations show in it.
     polish : bool
         After the swarm stops, refine its best position with a bounded local optimiser
         (``scipy.optimize.minimize``, L-BFGS-B), as ``scipy.optimize.differential_evolution``
@@ -262,22 +265,29 @@ def pso_minimize(
     last_improvement = 0
     best_seen = swarm.gbest_f
 
-    bar = None
-    if progress:
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from . import progress as _progress
 
-        bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                       TextColumn("best {task.fields[best]:.4g}"), TimeElapsedColumn(), transient=True)
-        task = bar.add_task(description, total=max_iter, best=swarm.gbest_f)
-        bar.start()
+    # a display of our own when asked; else the iterations go to an open one (e.g. fit_model's)
+    outer = progress if isinstance(progress, _progress.Progress) else _progress.active()
+    bar: _progress.Progress | None = None
+    if outer is not None and not outer.closed:
+        outer.start_sub(description, total=max_iter)
+        tick = outer.advance_sub
+    elif progress:
+        outer = None
+        bar = _progress.Progress(description, total=max_iter)
+        tick = bar.advance
+    else:
+        outer = None
+        tick = None
     try:
         if target is not None and swarm.gbest_f <= target:
             message = f"target fitness {target} reached"
             max_iter = 0
         while swarm.nit < max_iter:
             swarm.step()
-            if bar is not None:
-                bar.update(task, advance=1, best=swarm.gbest_f)
+            if tick is not None:
+                tick(1, best=swarm.gbest_f)
             if swarm.gbest_f < best_seen - ftol * abs(best_seen):
                 best_seen = swarm.gbest_f
                 last_improvement = swarm.nit
@@ -298,7 +308,9 @@ def pso_minimize(
                     break
     finally:
         if bar is not None:
-            bar.stop()
+            bar.close()
+        elif outer is not None:
+            outer.end_sub()
     success = bool(np.isfinite(swarm.gbest_f))
     if not success:
         message = "every evaluated fitness was non-finite"

@@ -119,15 +119,17 @@ class RigSettings:
         return g
 
     def to_dict(self) -> dict[str, Any]:
+        """The settings as plain data (what ``--rig-settings`` files hold)."""
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "RigSettings":
+        """Settings from plain data; unknown names are refused, missing ones take their defaults."""
         names = {f.name for f in fields(cls)}
         unknown = set(d) - names
         if unknown:
             raise ValueError(f"unknown rig setting(s) {sorted(unknown)}; the settings are {sorted(names)}")
-        conv = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}
+        conv: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}
         return cls(**conv)
 
 
@@ -295,7 +297,7 @@ class VirtualRig:
             )
         meta = {"source": "VirtualRig", "seed": self.seed, "clipped_samples": clipped,
                 "rig": self.settings.to_dict()}
-        return Dataset(np.arange(x.size) * self.dt, x, y, meta)
+        return Dataset(np.arange(x.size, dtype=np.float64) * self.dt, x, y, meta)
 
     def __repr__(self) -> str:
         s = self.settings

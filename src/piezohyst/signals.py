@@ -71,7 +71,7 @@ def time_vector(n: int, dt: float) -> FloatArray:
         raise TypeError(f"n must be a whole number of samples, got {type(n).__name__}")
     if not 0 <= n <= MAX_SAMPLES:
         raise ValueError(f"n must be in 0..{MAX_SAMPLES} samples, got {n}")
-    return np.arange(int(n)) * as_scalar("dt", dt, positive=True)
+    return np.arange(int(n), dtype=np.float64) * float(as_scalar("dt", dt, positive=True))
 
 
 def estimate_period(x: object, *, min_corr: float = 0.95) -> int | None:

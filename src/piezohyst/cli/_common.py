@@ -148,7 +148,7 @@ def cli_spelling(message: str, flags: dict[str, str]) -> str:
     return out
 
 
-def one_line(text: str) -> str:
+def one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from functools import partial
 from typing import Any
 
 from ._common import check_sinusoids, console, freqs, guarded, print_json
@@ -12,6 +13,8 @@ def cmd_models(args: argparse.Namespace) -> int:
     dt = 1e-4
     check_sinusoids(args.freq, 3, dt, cycles_flag="")  # before loading or allocating anything
 
+    import numpy as np
+
     import piezohyst as ph
     from piezohyst import paper_values as pv
 
@@ -19,9 +22,9 @@ def cmd_models(args: argparse.Namespace) -> int:
     for freq in args.freq:
         u = ph.sinusoid(freq, 3, 0.0, 100.0, dt)
         bw = pv.bouc_wen_model()
-        figs_bw = guarded(lambda: ph.loop_figures(u, bw.simulate(u, dt) * 1e6), f"--freq {freq:g} Hz")
+        figs_bw = guarded(partial(ph.loop_figures, u, bw.simulate(u, dt) * 1e6), f"--freq {freq:g} Hz")
         pi = pv.pi_model()
-        figs_pi = guarded(lambda: ph.loop_figures(u, pi.simulate(u)), f"--freq {freq:g} Hz")
+        figs_pi = guarded(partial(ph.loop_figures, u, pi.simulate(u)), f"--freq {freq:g} Hz")
         rows.append({"model": "Bouc-Wen, paper III-B", "freq_hz": freq, "span": figs_bw.span,
                      "unit": "um", "width": figs_bw.width, "width_percent": figs_bw.width_percent})
         rows.append({"model": "P-I, paper III-C", "freq_hz": freq, "span": figs_pi.span,
@@ -30,7 +33,7 @@ def cmd_models(args: argparse.Namespace) -> int:
     u = ph.sinusoid(1.0, 2, 0.0, 100.0, dt)
     y = pv.pi_model().simulate(u)
     inv_err = float(abs(inv.simulate(y) - u).max())
-    printed = ph.PrandtlIshlinskii(inv.thresholds, pv.PI_INVERSE_WEIGHTS_PRINTED)
+    printed = ph.PrandtlIshlinskii(inv.thresholds, np.asarray(pv.PI_INVERSE_WEIGHTS_PRINTED, dtype=np.float64))
     printed_err = float(abs(printed.simulate(y) - u).max())
     bw = pv.bouc_wen_model()
     result = {

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from functools import partial
 from pathlib import Path
 
 from ._common import (UsageError, add_rig_options, check_sinusoids, console, finite_float, freqs, guarded,
@@ -42,13 +43,13 @@ def cmd_rig(args: argparse.Namespace) -> int:
         u = ph.sinusoid(f, args.cycles, args.u_low, args.u_high, rig.dt)
         ds = rig.excite(u)
         period = int(round(1 / (f * rig.dt)))
-        lf = guarded(lambda: ph.loop_figures(ds.u, ds.y, period=period), f"--freq {f:g} Hz")
+        lf = guarded(partial(ph.loop_figures, ds.u, ds.y, period=period), f"--freq {f:g} Hz")
         rows.append({"freq_hz": f, "span_um": lf.span, "width_um": lf.width, "width_percent": lf.width_percent,
                      "clipped_samples": ds.meta["clipped_samples"]})
         runs.append((f"{f:g} Hz", ds.u[-period:], ds.y[-period:]))
         columns.append((f, ds))
     fig_path = csv_path = None
-    if folder is not None:
+    if folder is not None and out is not None:
         from .._fileio import atomic_write, producer
 
         plots.use_headless_backend()

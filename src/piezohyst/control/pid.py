@@ -54,6 +54,7 @@ class PID:
         self.reset()
 
     def reset(self) -> None:
+        """Clear the integral, the derivative filter and the previous error."""
         self.integral = 0.0
         self._d = 0.0
         self._e_prev = 0.0
@@ -85,6 +86,7 @@ class PID:
         return min(max(u, self.u_min), self.u_max)
 
     def settings(self) -> dict[str, float]:
+        """The gains and limits as plain data."""
         return {"kp": self.kp, "ki": self.ki, "kd": self.kd, "dt": self.dt, "tf": self.tf,
                 "u_min": self.u_min, "u_max": self.u_max}
 

@@ -123,35 +123,90 @@ class TrackingResult:
 
     @property
     def error(self) -> FloatArray:
+        """``output - reference``, µm, every sample."""
         return self.output - self.reference
 
     @property
     def e_max(self) -> float:
+        """The largest absolute error over the scored samples, µm."""
         return self.metrics.e_max
 
     @property
     def e_max_percent(self) -> float:
+        """``e_max`` as a percentage of the reference's span."""
         return self.metrics.e_max_percent
 
     @property
     def rmse(self) -> float:
+        """The RMS error over the scored samples, µm."""
         return self.metrics.rmse
 
     @property
     def rmse_percent(self) -> float:
+        """``rmse`` as a percentage of the reference's span."""
         return self.metrics.rmse_percent
 
     def summary(self) -> dict[str, Any]:
+        """The figures of merit and the run's settings as plain data (JSON-ready)."""
         return {"label": self.label, "e_max_um": self.e_max, "e_max_percent": self.e_max_percent,
                 "rmse_um": self.rmse, "rmse_percent": self.rmse_percent, "span_um": self.metrics.span,
                 "evaluated_samples": self.metrics.samples, "clipped_samples": self.clipped, **{
                     k: v for k, v in self.info.items() if isinstance(v, (int, float, str, bool)) or v is None}}
 
-    def plot(self, axes: Any = None, title: str | None = None) -> list[Any]:
-        """Desired vs measured displacement and the error over time (cf. the paper's Figs. 6-9)."""
-        from ..plots import plot_tracking
+    def plot(self, axes: Any = None, title: str | None = None, *, u_range: Any = None) -> Any:
+        """The run as a figure (cf. the paper's Figs. 6-9): desired and measured displacement,
+        the error on the scale of the scored window (shaded), the command, and measured against
+        desired (:func:`piezohyst.plots.plot_tracking`).
 
-        return plot_tracking(self.t, self.reference, self.output, axes=axes, title=title or self.label)
+        Parameters
+        ----------
+        axes : sequence of Axes, optional
+            As for :func:`~piezohyst.plots.plot_tracking`; a new figure when omitted.
+        title : str, optional
+            Default: the run's label and its figures of merit.
+        u_range : (low, high), optional
+            The actuator's range (V) to draw on the command panel.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Shown once when it is a Jupyter cell's value; ``fig.savefig(...)`` saves it.
+        """
+        from ..plots import figure_result, plot_tracking
+
+        period = self.period if self.period is not None else estimate_period(self.reference)
+        scored = cycles_after_first(self.reference.size, period)
+        m = self.metrics
+        head = title or (f"{self.label + ': ' if self.label else ''}e_max {m.e_max * 1e3:.3g} nm "
+                         f"({m.e_max_percent:.2f} % of span), RMSE {m.rmse * 1e3:.3g} nm")
+        arts = plot_tracking(self.t, self.reference, self.output, command=self.command, scored=scored,
+                             u_range=u_range, axes=axes, title=head)
+        fig = arts[0].axes.figure
+        return figure_result(fig) if axes is None else fig
+
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: the figures of merit and the window they are taken on."""
+        from .. import _html
+
+        m = self.metrics
+        n = self.reference.size
+        period = self.period if self.period is not None else estimate_period(self.reference)
+        sl = cycles_after_first(n, period)
+        window = (f"samples {sl.start}..{sl.stop - 1} of {n} (the whole cycles after the first)"
+                  if sl.stop - sl.start < n else f"all {n} samples")
+        dt = float(self.t[1] - self.t[0]) if n > 1 else float("nan")
+        rows: list[tuple[str, Any]] = [
+            ("e_max", f"{m.e_max:.4g} µm ({m.e_max_percent:.3g} % of span)"),
+            ("RMSE", f"{m.rmse:.4g} µm ({m.rmse_percent:.3g} % of span)"),
+            ("reference span", f"{m.span:.4g} µm"),
+            ("scored", window),
+            ("period", f"{period} samples ({period * dt:.4g} s)" if period else "does not repeat"),
+            ("duration", f"{n * dt:.4g} s at {1 / dt:.5g} Hz" if n > 1 else "-"),
+            ("clipped commands", self.clipped),
+        ]
+        rows += [(k.replace("_", " "), v) for k, v in self.info.items()
+                 if isinstance(v, (int, float, str, bool)) and not isinstance(v, type)]
+        return _html.block(f"TrackingResult{': ' + self.label if self.label else ''}", _html.table(rows))
 
 
 class LoopWatch:
@@ -355,7 +410,7 @@ def track(
         y_prev = yk
     clipped = None
     if clipped0 is not None:
-        clipped = int(getattr(plant, "clipped")) - (0 if reset else int(clipped0))
+        clipped = int(plant.clipped) - (0 if reset else int(clipped0))
     return TrackingResult(t=np.arange(n, dtype=np.float64) * dt, reference=r, output=y, command=u,
                           period=period if period is not None else estimate_period(r),
                           clipped=clipped, label=label,

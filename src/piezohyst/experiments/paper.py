@@ -150,6 +150,7 @@ class PaperExperiment:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        """Everything measured as plain data: what ``piezohyst reproduce`` writes to results.json."""
         return {
             "seed": self.seed, "plant": self.plant_description, "freqs_hz": list(self.freqs),
             "reference_um": list(self.reference_range),
@@ -272,38 +273,80 @@ FIGURES = {
 }
 
 
-def write_figures(exp: PaperExperiment, out: Any, *, force: bool = False) -> dict[str, Any]:
-    """The paper's Figs. 2-4 and 6-9 from ``exp`` as PNG files in ``out``."""
+def figure_files(formats: Any = ("png",)) -> list[str]:
+    """The file names :func:`write_figures` writes for ``formats`` (to check before a run)."""
+    from ..plots import check_formats
+
+    fmts = check_formats(formats)
+    return [name.rsplit(".", 1)[0] + "." + f for name in FIGURES.values() for f in fmts]
+
+
+def write_figures(exp: PaperExperiment, out: Any, *, force: bool = False, formats: Any = ("png",)) -> dict[str, Any]:
+    """The paper's Figs. 2-4 and 6-9 from ``exp``, as files in ``out``.
+
+    Parameters
+    ----------
+    exp : PaperExperiment
+    out : path
+        The folder (created if missing).
+    force : bool
+        Overwrite existing files.
+    formats : str or sequence of str
+        Any of ``"png"``, ``"pdf"``, ``"svg"`` (``"png,pdf"`` or a list): every figure is written
+        in each. (The command line's ``--format`` flag is to pass this through.)
+
+    Returns
+    -------
+    dict
+        ``{key: path}`` with the file of the first format under ``"fig2"``, ... (the names in
+        :data:`FIGURES` with that format's suffix), and each further format under
+        ``"fig2.pdf"``, ... . Every file records what produced it in its metadata.
+    """
     from pathlib import Path
 
     from .. import plots
 
+    fmts = plots.check_formats(formats)
     out = Path(out)
     plots.use_headless_backend()
-    paths = {}
+    paths: dict[str, Any] = {}
+    on_rig = exp.plant_description.startswith("VirtualRig")
+    where = "the virtual rig" if on_rig else "the plant"
+    data_label = "measured (virtual rig)" if on_rig else "measured"
+    rig = exp.identification_data.meta.get("rig") or {}
+    u_range = (rig["u_min"], rig["u_max"]) if "u_min" in rig and "u_max" in rig else None
+
+    def save(key: str, fig: Any, note: str) -> None:
+        files = plots.save_formats(fig, out / FIGURES[key], fmts, force=force, note=f"{note}; {exp.plant_description}")
+        paths[key] = files[0]
+        for f, pth in zip(fmts[1:], files[1:]):
+            paths[f"{key}.{f}"] = pth
+
     period = {f: int(round(1 / (f * exp.identification_data.dt))) for f in exp.freqs}
     runs = [(f"{f:g} Hz", ds.u[-period[f]:], ds.y[-period[f]:]) for f, (ds, _) in exp.loops.items()]
-    lines = plots.plot_loops(runs, title="Fig. 2 - open-loop hysteresis of the virtual rig")
-    paths["fig2"] = plots.save(lines[0].axes, out / FIGURES["fig2"], force=force)
+    title = f"Fig. 2 - open-loop hysteresis of {where}: the last cycle at each frequency"
+    lines = plots.plot_loops(runs, title=title)
+    save("fig2", lines[0].axes.figure, title)
     ident = exp.identification_data
     p1 = int(round(1 / ident.dt))
     sl = slice(ident.u.size - p1, ident.u.size)
-    y_bw = exp.bw_fit.model.simulate(ident.u, ident.dt) * 1e6
-    a = plots.plot_model_vs_measured(ident.u[sl], ident.y[sl], y_bw[sl], model_name="Bouc-Wen",
-                                     title=f"Fig. 3 - Bouc-Wen model, 1 Hz (RMSE {exp.bw_fit.rmse * 1e3:.1f} nm)")
-    paths["fig3"] = plots.save(a[0].axes, out / FIGURES["fig3"], force=force)
-    y_pi = exp.pi_fit.model.simulate(ident.u)
-    a = plots.plot_model_vs_measured(ident.u[sl], ident.y[sl], y_pi[sl], model_name="P-I",
-                                     title=f"Fig. 4 - P-I model, 1 Hz (RMSE {exp.pi_fit.rmse * 1e3:.1f} nm)")
-    paths["fig4"] = plots.save(a[0].axes, out / FIGURES["fig4"], force=force)
+    t_last = ident.t[sl]
+    for key, fit, name, num in (("fig3", exp.bw_fit, "Bouc-Wen", 3), ("fig4", exp.pi_fit, "P-I", 4)):
+        y_model = fit.predict(ident.u, ident.dt)
+        title = (f"Fig. {num} - identified {name} model against the 1 Hz record, last cycle "
+                 f"(fit RMSE {fit.rmse * 1e3:.1f} nm on the whole record)")
+        a = plots.plot_fit(ident.u[sl], ident.y[sl], y_model[sl], t=t_last, model_name=f"identified {name}",
+                           data_label=data_label, title=title)
+        save(key, a[0].axes.figure, title)
     f1 = min(exp.freqs, key=lambda f: abs(f - 1.0))
     for key, (m, fb, name) in {"fig6": ("bouc-wen", False, "stand-alone Bouc-Wen feedforward"),
                                "fig7": ("bouc-wen", True, "Bouc-Wen feedforward + PID"),
                                "fig8": ("pi", False, "stand-alone inverse P-I feedforward"),
                                "fig9": ("pi", True, "inverse P-I feedforward + PID")}.items():
         run = exp.runs[(m, f1, fb)]
-        arts = run.plot(title=f"Fig. {key[3:]} - {f1:g} Hz tracking, {name} (RMSE {run.rmse * 1e3:.1f} nm)")
-        paths[key] = plots.save(arts[0].axes, out / FIGURES[key], force=force)
+        title = (f"Fig. {key[3:]} - {f1:g} Hz tracking, {name}: e_max {run.e_max * 1e3:.1f} nm "
+                 f"({run.e_max_percent:.1f} %), RMSE {run.rmse * 1e3:.1f} nm over the cycles after the first")
+        save(key, run.plot(title=title, u_range=u_range), title)
     return paths
 
 

@@ -64,6 +64,7 @@ class CEmitter:
     _names: set[str] = field(default_factory=set)
 
     def name(self, base: str) -> str:
+        """A C identifier made from ``base``, unique in this file."""
         stem = _IDENT.sub("_", base)
         if not stem or stem[0].isdigit():
             stem = "ph_" + stem
@@ -76,6 +77,7 @@ class CEmitter:
 
     @staticmethod
     def num(x: float) -> str:
+        """``x`` as a C double literal that reads back to the same float."""
         return c_number(x)
 
     @staticmethod
@@ -118,6 +120,7 @@ class CEmitter:
         return key
 
     def function(self, code: str) -> None:
+        """Add a C function definition to the file."""
         self.functions.append(code)
 
 

@@ -152,7 +152,7 @@ def fit_bouc_wen(
     # the offset that eq. (9) was minimised over
     params = dict(zip(BW_NAMES, (float(v) for v in theta)))
     model0 = BoucWen(**params)
-    offset = float(np.mean(y_m - model0.simulate(us, dt, hold=hold))) if fit_offset else 0.0  # type: ignore[arg-type]
+    offset = float(np.mean(y_m - model0.simulate(us, dt, hold=hold))) if fit_offset else 0.0  # type: ignore[arg-type, operator]
     model = BoucWen(**params, offset=offset)
     sens = _bw_sensitivity(theta, rmse, nat_lo, nat_hi, us, y_m, dt, foh, fit_offset)
     info["polished_rmse"] = rmse if polish else None

@@ -40,7 +40,7 @@ from ..models.asymmetric_pi import AsymmetricPI, OutputMap
 from ..models.bouc_wen_hysteresis import BoucWenHysteresis, max_unit_slope, unit_hysteresis
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
 from ..models.play import play_outputs
-from ..models.preisach import Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs
+from ..models.preisach import Preisach, demagnetised_state, grid_thresholds, preisach_outputs
 from ..models.rate import RateDependent, first_order_lag, lag_factor
 from .lsq import bounded_lstsq_gram
 from .result import FitResult
@@ -103,10 +103,12 @@ class Structure:
 
     @property
     def rate_dependent(self) -> bool:
+        """True when the structure has an input lag or output lags."""
         return bool(self.taus) or self.input_tau > 0
 
     @property
     def kind(self) -> str:
+        """The model kind this structure fits (``"asymmetric-pi"``, ``"rate-dependent"``, ...)."""
         if self.map_knots:
             return "asymmetric-pi"
         if self.rate_dependent:
@@ -114,6 +116,7 @@ class Structure:
         return {"pi": "prandtl-ishlinskii", "preisach": "preisach", "bouc-wen": "bouc-wen-hysteresis"}[self.static]
 
     def label(self) -> str:
+        """A one-line description (static part, size, lags, delay), as the candidates tables show."""
         name = {"pi": f"P-I n={self.size}" + (" (eq. 4 thresholds)" if self.thresholds == "eq4" else ""),
                 "preisach": f"Preisach {self.size} levels",
                 "bouc-wen": f"Bouc-Wen hysteresis beta={self.shape[0]:.3g}/V gamma={self.shape[1]:.3g}/V"}[self.static]
@@ -128,6 +131,7 @@ class Structure:
         return "; ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
+        """The structure as plain data: kind of static part, size, map knots, lags (s), delay."""
         out = {"static": self.static, "size": self.size, "map_knots": self.map_knots,
                "taus_s": list(self.taus), "input_tau_s": self.input_tau, "delay": self.delay,
                "thresholds": self.thresholds}
@@ -200,7 +204,7 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
     memo: dict[Any, Any] = {} if cache is None else cache
     key_v = ("v", st.input_tau, ref.size)
     if key_v not in memo:
-        b = lag_factor(st.input_tau, dt) if st.input_tau else 0.0
+        b = lag_factor(st.input_tau, dt) if st.input_tau and dt is not None else 0.0
         v_all = first_order_lag(u, b) if b else np.array(u, dtype=np.float64)
         v_ref_all = first_order_lag(ref, b) if b else np.asarray(ref, dtype=np.float64)
         memo[key_v] = (v_all, v_ref_all)
@@ -211,7 +215,7 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
     else:
         static_cols, floor, info = _static_columns(v, v_ref, st)
         memo[key_s] = (static_cols, floor, info)
-    a_lag = np.exp(-dt / np.asarray(st.taus, dtype=np.float64)) if st.taus else np.zeros(0)
+    a_lag = np.exp(-float(dt or 0.0) / np.asarray(st.taus, dtype=np.float64)) if st.taus else np.zeros(0)
     p, m = static_cols.shape[1], a_lag.size
     rows = slice(None, None, stride)
     base = np.empty((-(-u.size // stride), p + m + 2))
@@ -297,7 +301,7 @@ def _decode_map(tau: FloatArray, knots: FloatArray, centre: float) -> OutputMap:
             prev = t
             i += 1
     ks = np.sort(knots)
-    return OutputMap(ks, [phi_by_knot[float(k)] for k in ks], centre)
+    return OutputMap(ks, np.array([phi_by_knot[float(k)] for k in ks], dtype=np.float64), centre)
 
 
 def map_knots_for(y: FloatArray, count: int) -> tuple[FloatArray, float]:

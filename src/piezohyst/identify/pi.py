@@ -163,12 +163,12 @@ def fit_pi(
         n_fit = int(round(0.7 * us.size))
         part = pi_gram(us[:n_fit], r, ys[:n_fit], delays=delays)
         whole = pi_gram(us, r, ys, delays=delays)
-        hold = {}
+        hold: dict[int, float] = {}
         for i, d in enumerate(delays):
             x = _lsq_from_gram(part, i, nr, margin, fit_offset)
             g, b, c, m = _difference(whole, part, i, fit_offset)
             coef = _coefficients(x, nr)
-            hold[d] = float(np.sqrt(max(c - 2 * coef @ b + coef @ g @ coef, 0.0) / m))
+            hold[d] = float(np.sqrt(max(float(c - 2 * coef @ b + coef @ g @ coef), 0.0) / m))
         delay = min(hold, key=lambda d: hold[d])
         info["delay_holdout_rmse"] = hold
         stats, i_d = whole, delays.index(delay)
@@ -185,14 +185,14 @@ def fit_pi(
         info["active_constraints"] = int(np.sum(s <= margin * (1 + 1e-9)))
     else:
         # eq. (9) for the whole swarm from the Gram matrix: RMSE^2 = w'Gw - 2b'w + c
-        gram_z, zty, zsum, ysum, yty, m = (stats.gram[i_d], stats.zty[i_d], stats.zsum[i_d], float(stats.ysum[i_d]),
-                                            float(stats.yty[i_d]), float(stats.n_samples[i_d]))
+        gram_z, zty, zsum, ysum, yty, m_rows = (stats.gram[i_d], stats.zty[i_d], stats.zsum[i_d], float(stats.ysum[i_d]),
+                                                 float(stats.yty[i_d]), float(stats.n_samples[i_d]))
         if fit_offset:  # centred: the best offset for every particle analytically
-            gram = (gram_z - np.outer(zsum, zsum) / m) / m
-            bvec = (zty - zsum * ysum / m) / m
-            cval = (yty - ysum * ysum / m) / m
+            gram = (gram_z - np.outer(zsum, zsum) / m_rows) / m_rows
+            bvec = (zty - zsum * ysum / m_rows) / m_rows
+            cval = (yty - ysum * ysum / m_rows) / m_rows
         else:
-            gram, bvec, cval = gram_z / m, zty / m, yty / m
+            gram, bvec, cval = gram_z / m_rows, zty / m_rows, yty / m_rows
         span_u = float(np.ptp(us))
 
         def fitness(wmat: FloatArray) -> FloatArray:
@@ -207,7 +207,7 @@ def fit_pi(
                            seed=seed, progress=progress, callback=callback,
                            description=f"PSO, P-I weights ({nr})")
         w = res.x
-        offset = float((ysum - zsum @ w) / m) if fit_offset else 0.0
+        offset = float((ysum - zsum @ w) / m_rows) if fit_offset else 0.0
         nit, nfev, history, message = int(res.nit), int(res.nfev), res.history, res.message
         info["weight_bounds"] = [float(lo), float(hi)]
 

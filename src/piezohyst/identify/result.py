@@ -87,6 +87,97 @@ class FitResult:
         """The fitted model's output for ``u`` in µm (the unit of ``y``)."""
         return self.model.predict(u, dt)
 
+    def plot(self, u: Any, y: Any = None, dt: float | None = None, *, split: int | None = None,
+             title: str | None = None, data_label: str = "measured") -> Any:
+        """The model against a record: loops, time series and the residual
+        (:func:`piezohyst.plots.plot_fit`).
+
+        Parameters
+        ----------
+        u, y : array_like or Dataset
+            Input (V) and measured output (µm), from rest (the model is simulated from its
+            initial state), or one Dataset as ``u`` (its ``dt`` is used).
+        dt : float, optional
+            Sample period (s); needed by models with dynamics.
+        split : int, optional
+            First sample not used for fitting (e.g. the start of a validation part): shaded, and
+            its RMSE given apart.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Shown once when it is a Jupyter cell's value.
+
+        Notes
+        -----
+        With a sensor delay of ``d`` samples the model's output for ``u[k]`` is compared with
+        ``y[k + d]``, as in the fit.
+        """
+        from ..plots import figure_result, plot_fit
+
+        if y is None and hasattr(u, "u") and hasattr(u, "y"):
+            dt = getattr(u, "dt", None) if dt is None else dt
+            data_label = str(getattr(u, "meta", {}).get("name", data_label)) if data_label == "measured" else data_label
+            u, y = u.u, u.y
+        if y is None:
+            raise TypeError("plot needs the measured output y (or a Dataset as u)")
+        us = as_signal("u", u, min_length=2)
+        ys = as_signal("y", y, min_length=2)
+        if us.size != ys.size:
+            raise ValueError(f"u and y must have the same length, got {us.size} and {ys.size}")
+        pred = self.predict(us, dt)
+        d = self.delay
+        if d:
+            us, ys, pred = us[: us.size - d], ys[d:], pred[: pred.size - d]
+        kind = getattr(self.model, "kind", type(self.model).__name__)
+        head = title or f"{kind} model ({self.method}); fit RMSE {self.rmse:.4g} µm"
+        arts = plot_fit(us, ys, pred, dt=dt, split=None if split is None else max(split - d, 0),
+                        model_name=f"{kind} model", data_label=data_label, title=head)
+        return figure_result(arts[0].axes.figure)
+
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: the fit's figures, its warnings, the candidates tried
+        and the model."""
+        from .. import _html
+
+        kind = getattr(self.model, "kind", type(self.model).__name__)
+        rows: list[tuple[str, Any]] = [("model", kind), ("method", self.method),
+                                       ("fit RMSE", f"{self.rmse:.4g} µm on {self.n_samples} samples")]
+        hold = self.info.get("holdout")
+        if isinstance(hold, dict) and hold.get("rmse") is not None:
+            pct = hold.get("percent_of_span")
+            rows.append(("hold-out RMSE", f"{hold['rmse']:.4g} µm"
+                         + (f" ({pct:.3g} % of span)" if pct is not None else "")
+                         + (f" on {hold['on']}" if hold.get("on") else "")))
+        rows += [("sensor delay", f"{self.delay} samples"), ("time", f"{self.time_s:.3g} s")]
+        if self.nit is not None:
+            rows.append(("iterations / evaluations", f"{self.nit} / {self.nfev}"))
+        if self.poorly_constrained:
+            rows.append(("barely constrained", ", ".join(self.poorly_constrained)))
+        parts = [_html.table(rows)]
+        if self.warnings:
+            import html
+
+            parts.append("<b>Warnings</b><ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in self.warnings) + "</ul>")
+        cands = self.info.get("candidates")
+        if isinstance(cands, list) and cands:
+            ranked = sorted(cands, key=lambda c: (c.get("holdout_rmse") is None, c.get("holdout_rmse") or 0.0))
+            shown = ranked[:12]
+            cols = [("candidate", "label"), ("hold-out RMSE (µm)", "holdout_rmse"),
+                    ("% of span", "holdout_percent_of_span"), ("fit RMSE (µm)", "fit_rmse"),
+                    ("parameters", "n_parameters")]
+            # a column no candidate has a number in says nothing
+            cols = [(h, k) for h, k in cols if k == "label" or any(
+                isinstance(c.get(k), (int, float)) and np.isfinite(c[k]) for c in shown)]
+            parts.append(_html.grid(
+                [h for h, _ in cols], [[c.get(k) for _, k in cols] for c in shown],
+                caption=f"Candidates by hold-out error (best {len(shown)} of {len(cands)}; the chosen one in bold)",
+                bold=[bool(c.get("chosen")) for c in shown]))
+        model_html = getattr(self.model, "_repr_html_", None)
+        if callable(model_html):
+            parts.append(model_html())
+        return _html.block(f"FitResult: {kind}", *parts)
+
 
 
 def paired_signals(u: Any, y: Any, delay: int) -> tuple[FloatArray, FloatArray]:

@@ -125,7 +125,7 @@ class _Scorer:
     """Fits a structure on the fitting rows and scores it on the hold-out or validation sets."""
 
     def __init__(self, u: FloatArray, y: FloatArray, dt: float | None, n_fit: int,
-                 validation: list[tuple[FloatArray, FloatArray, int]], margin: float | None):
+                 validation: list[tuple[FloatArray, FloatArray, int]], margin: float):
         self.u, self.y, self.dt, self.n_fit = u, y, dt, n_fit
         self.validation = validation
         self.margin = margin

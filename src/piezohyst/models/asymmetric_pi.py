@@ -100,13 +100,16 @@ class OutputMap:
         return out
 
     def min_inverse_slope(self) -> float:
+        """The smallest slope of ``g^-1`` over its segments (> 0: g strictly increasing)."""
         return float(self.segment_slopes().min())
 
     def to_dict(self) -> dict[str, Any]:
+        """The map as plain data: knots (µm), coefficients, centre (µm)."""
         return {"knots": self.knots.tolist(), "coefficients": self.coefficients.tolist(), "centre": self.centre}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "OutputMap":
+        """Rebuild the map from :meth:`to_dict`'s data."""
         return cls(d["knots"], d["coefficients"], d["centre"])
 
     def __eq__(self, other: object) -> bool:
@@ -145,14 +148,17 @@ class AsymmetricPI:
 
     @property
     def dynamic(self) -> bool:  # type: ignore[override]
+        """True when the inner model has dynamics (then ``dt`` is needed)."""
         return bool(self.inner.dynamic)
 
     @property
     def dt(self) -> float | None:
+        """The inner model's sample period (s), or None for a rate-independent one."""
         return getattr(self.inner, "dt", None)
 
     @property
     def is_invertible(self) -> bool:
+        """The inner model is invertible and the output map strictly increasing."""
         return bool(self.inner.is_invertible) and self.output_map.min_inverse_slope() > 0
 
     def __eq__(self, other: object) -> bool:
@@ -166,12 +172,15 @@ class AsymmetricPI:
         return f"AsymmetricPI({self.inner!r}, knots={np.round(self.output_map.knots, 4).tolist()})"
 
     def simulate(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The output ``g(P[u])`` in µm for the input signal ``u`` (V)."""
         return self.output_map.forward_map(self.inner.simulate(u, dt))
 
     def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The output in µm (the protocol's common unit; the same as :meth:`simulate`)."""
         return self.simulate(u, dt)
 
     def stepper(self, dt: float | None = None) -> "AsymmetricStepper":
+        """A streaming evaluator: ``s.step(u_k)`` gives ``y(k)``, on the inner model's kernel."""
         return AsymmetricStepper(self, self.inner.stepper(dt))
 
     def compensator(self, dt: float | None = None, *, u_range: Any = None,
@@ -180,16 +189,25 @@ class AsymmetricPI:
         return AsymmetricCompensator(self, self.inner.compensator(dt), u_range=u_range, max_slew=max_slew)
 
     def to_dict(self) -> dict[str, Any]:
+        """The parameters as plain data: the nested inner model and the output map."""
         return {"inner": nested_to_dict(self.inner), "output_map": self.output_map.to_dict()}
 
     @classmethod
     def from_dict(cls, params: dict[str, Any]) -> "AsymmetricPI":
+        """Rebuild the model from :meth:`to_dict`'s data."""
         return cls(inner=nested_from_dict(params["inner"], "the inner model of an asymmetric P-I model"),
                    output_map=OutputMap.from_dict(params["output_map"]))
 
     def describe(self) -> dict[str, Any]:
+        """The inner kind, the map's knots (µm) and its segment slopes."""
         return {"inner": kind_of(self.inner), "knots": self.output_map.knots.tolist(),
                 "map_slopes": self.output_map.segment_slopes().tolist()}
+
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
+        from .._html import model_html
+
+        return model_html(self)
 
 
 class AsymmetricStepper:

@@ -48,24 +48,32 @@ class HysteresisModel(Protocol):
     output_unit: ClassVar[str]
 
     @property
-    def is_invertible(self) -> bool: ...  # noqa: E704
+    def is_invertible(self) -> bool:
+        """True when the model has a stable inverse (its compensator can be built)."""
 
     @property
-    def dynamic(self) -> bool: ...  # noqa: E704
+    def dynamic(self) -> bool:
+        """True when the model has dynamics and needs the sample period ``dt``."""
 
-    def simulate(self, u: Any, dt: float | None = None) -> FloatArray: ...  # noqa: E704
+    def simulate(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The output for the input signal ``u`` (V), in the kind's ``output_unit``."""
 
-    def predict(self, u: Any, dt: float | None = None) -> FloatArray: ...  # noqa: E704
+    def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The output for ``u`` in µm, the unit of every data set."""
 
-    def stepper(self, dt: float | None = None) -> Stepper: ...  # noqa: E704
+    def stepper(self, dt: float | None = None) -> Stepper:
+        """A streaming evaluator (``reset()``, ``step(u_k)``) on the kernel :meth:`simulate` runs."""
 
     def compensator(self, dt: float | None = None, *, u_range: Any = None,
-                    max_slew: float | None = None) -> "Compensator": ...  # noqa: E704
+                    max_slew: float | None = None) -> "Compensator":
+        """The feedforward that inverts the model: desired µm in, volts out, limited after the inverse."""
 
-    def to_dict(self) -> dict[str, Any]: ...  # noqa: E704
+    def to_dict(self) -> dict[str, Any]:
+        """The parameters as plain JSON data (what a model file holds)."""
 
     @classmethod
-    def from_dict(cls, params: dict[str, Any]) -> Any: ...  # noqa: E704
+    def from_dict(cls, params: dict[str, Any]) -> Any:
+        """Rebuild a model from :meth:`to_dict`'s data."""
 
 
 # -- the registry ----------------------------------------------------------------------------------
@@ -80,6 +88,10 @@ def register_kind(name: str, *aliases: str) -> Callable[[type[T]], type[T]]:
         if name in _KINDS and _KINDS[name] is not cls:
             raise ValueError(f"model kind {name!r} is registered twice")
         cls.kind = name  # type: ignore[attr-defined]
+        if not hasattr(cls, "_repr_html_"):  # every kind shows as a table in Jupyter
+            from .._html import model_html
+
+            cls._repr_html_ = model_html  # type: ignore[attr-defined]
         _KINDS[name] = cls
         for a in (name, *aliases):
             _ALIASES[a] = name
@@ -98,7 +110,7 @@ def kind_names_and_aliases() -> list[str]:
     return sorted(_ALIASES)
 
 
-def kind_class(name: str) -> type:
+def kind_class(name: str) -> type[Any]:
     """The class registered as ``name`` (or an alias of it)."""
     key = _ALIASES.get(str(name).strip().lower())
     if key is None:
@@ -235,6 +247,7 @@ class Compensator:
         return out
 
     def settings(self) -> dict[str, Any]:
+        """The output limits: ``u_range`` (V) and ``max_slew`` (V per sample)."""
         return {"u_range": list(self.u_range) if self.u_range else None, "max_slew": self.max_slew}
 
     # -- export (piezohyst.export): what the C and MATLAB exporters need from each kind ----------

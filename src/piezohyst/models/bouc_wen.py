@@ -614,8 +614,8 @@ class BoucWen:
     --------
     >>> import piezohyst as ph, numpy as np
     >>> bw = ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072, gamma=0.0)
-    >>> round(bw.natural_frequency_hz)
-    1700
+    >>> round(bw.natural_frequency_hz)  # sqrt(8.54e7 / 0.75) / (2 pi): the paper's "1.7 kHz"
+    1698
     """
 
     m: float
@@ -682,6 +682,7 @@ class BoucWen:
         return BoucWenStepper(self, dt, hold=hold)
 
     # -- the model protocol (piezohyst.models.base) ---------------------------------------------
+    kind: ClassVar[str]
     output_unit: ClassVar[str] = "m"
     dynamic: ClassVar[bool] = True
     is_invertible: ClassVar[bool] = True  # eq. (10) solves for the command at every sample
@@ -698,10 +699,12 @@ class BoucWen:
         return BoucWenFeedforward(self, u_range=u_range, max_slew=max_slew)
 
     def to_dict(self) -> dict[str, float]:
+        """The seven parameters of eqs. (7)-(8), the offset and h0, in SI units (plain data)."""
         return self.parameters()
 
     @classmethod
     def from_dict(cls, params: dict[str, Any]) -> "BoucWen":
+        """Rebuild the model from :meth:`to_dict`'s data; unknown names are refused."""
         names = ("m", "b", "k", "d1", "alpha", "beta", "gamma", "offset", "h0")
         missing = [n for n in names[:6] if n not in params]
         if missing:
@@ -710,6 +713,12 @@ class BoucWen:
         if unknown:
             raise ValueError(f"unknown Bouc-Wen parameter(s) {sorted(unknown)}")
         return cls(**{n: params[n] for n in names if n in params})
+
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
+        from .._html import model_html
+
+        return model_html(self)
 
 
 def solve_ivp_reference(model: BoucWen, u: Any, dt: float, *, method: str = "LSODA", rtol: float = 1e-10,
@@ -766,6 +775,7 @@ class BoucWenStepper:
         return float(self._st[1])
 
     def step(self, u_k: float) -> float:
+        """Apply ``u_k`` (V) for one sample; return the displacement (m)."""
         x = float(u_k)
         if not math.isfinite(x):
             raise ValueError(f"u_k must be finite, got {u_k!r}")

@@ -130,6 +130,7 @@ class BoucWenHysteresis:
 
     @property
     def is_invertible(self) -> bool:
+        """True when every branch rises (``min_slope > 0``): the inverse exists and is unique."""
         return self.min_slope > 0
 
     def simulate(self, u: Any, dt: float | None = None) -> FloatArray:
@@ -139,9 +140,11 @@ class BoucWenHysteresis:
         return self.offset + self.d1 * v - self.alpha * self.d1 * unit_hysteresis(v, self.beta, self.gamma)
 
     def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The same as :meth:`simulate` (rate independent: ``dt`` is not needed)."""
         return self.simulate(u, dt)
 
     def stepper(self, dt: float | None = None) -> "BoucWenHysteresisStepper":
+        """A per-sample simulator carrying the hysteresis state between calls."""
         check_dt(dt, None, self.kind)
         return BoucWenHysteresisStepper(self)
 
@@ -151,14 +154,17 @@ class BoucWenHysteresis:
 
     def compensator(self, dt: float | None = None, *, u_range: Any = None,
                     max_slew: float | None = None) -> "BoucWenHysteresisCompensator":
+        """The feedforward ``u = H^-1[x_d]``, clipped to ``u_range`` and rate-limited to ``max_slew`` V/sample."""
         check_dt(dt, None, self.kind)
         return BoucWenHysteresisCompensator(self, u_range=u_range, max_slew=max_slew)
 
     def to_dict(self) -> dict[str, Any]:
+        """The parameters as plain data, for the model file (``from_dict`` reads them back)."""
         return {"d1": self.d1, "alpha": self.alpha, "beta": self.beta, "gamma": self.gamma, "offset": self.offset}
 
     @classmethod
     def from_dict(cls, params: dict[str, Any]) -> "BoucWenHysteresis":
+        """The model from :meth:`to_dict`'s parameters (``gamma``, ``offset`` default 0)."""
         return cls(d1=params["d1"], alpha=params["alpha"], beta=params["beta"], gamma=params.get("gamma", 0.0),
                    offset=params.get("offset", 0.0))
 

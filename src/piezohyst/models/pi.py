@@ -97,7 +97,7 @@ class PrandtlIshlinskii:
 
     thresholds: FloatArray
     weights: FloatArray
-    initial_state: FloatArray = field(default=None)  # type: ignore[assignment]
+    initial_state: FloatArray = field(default=None)  # type: ignore[arg-type]  # None: zeros, set in __post_init__
     offset: float = 0.0
     input_offset: float = 0.0
 
@@ -196,8 +196,10 @@ class PrandtlIshlinskii:
 
     @classmethod
     def from_dict(cls, params: dict[str, Any]) -> "PrandtlIshlinskii":
+        """Rebuild the model from :meth:`to_dict`'s data."""
         return cls(thresholds=params["thresholds"], weights=params["weights"],
-                   initial_state=params.get("initial_state"), offset=params.get("offset", 0.0),
+                   initial_state=params.get("initial_state"),  # type: ignore[arg-type]  # None: zeros
+                   offset=params.get("offset", 0.0),
                    input_offset=params.get("input_offset", 0.0))
 
     def with_extra_slope(self, kappa: float) -> "PrandtlIshlinskii":
@@ -273,6 +275,12 @@ class PrandtlIshlinskii:
         return PrandtlIshlinskii(
             self.thresholds, self.weights, initial_state, self.offset, self.input_offset
         )
+
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
+        from .._html import model_html
+
+        return model_html(self)
 
 
 class PIStepper:
@@ -379,6 +387,7 @@ class InversePIFeedforward(Compensator):
                 **self.inverse.to_dict()}
 
     def to_c(self, c: Any, prefix: str) -> str:
+        """The C code of this compensator (see :mod:`piezohyst.export.c`); the stepper's, which it wraps."""
         return self._stepper.to_c(c, prefix)
 
     def __repr__(self) -> str:

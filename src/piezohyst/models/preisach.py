@@ -261,6 +261,7 @@ class Preisach:
         return grid_thresholds(self.lo, self.hi, self.n)
 
     def initial_state(self) -> FloatArray:
+        """The hysterons' states at rest (the demagnetised state at input 0)."""
         a, b, d = self._grid()
         return demagnetised_state(a, b, d, 0.0)
 
@@ -271,6 +272,7 @@ class Preisach:
 
     @property
     def is_invertible(self) -> bool:
+        """True when ``slope > 0`` (then every branch rises at least at ``slope``)."""
         return self.slope > 0
 
     def __eq__(self, other: object) -> bool:
@@ -294,6 +296,7 @@ class Preisach:
         return preisach_simulate(v, a, b, 1.0 / d, self.initial_state(), self.weights, self.slope, self.offset)
 
     def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The output in µm (the protocol's common unit; the same as :meth:`simulate`)."""
         return self.simulate(u, dt)
 
     def hysteron_outputs(self, u: Any) -> FloatArray:
@@ -303,6 +306,7 @@ class Preisach:
         return preisach_outputs(v, a, b, 1.0 / d, self.initial_state())
 
     def stepper(self, dt: float | None = None) -> "PreisachStepper":
+        """A streaming evaluator: ``s.step(u_k)`` gives ``y(k)``, on the same kernel."""
         check_dt(dt, None, self.kind)
         return PreisachStepper(self)
 
@@ -318,16 +322,24 @@ class Preisach:
 
     # -- files -----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
+        """The parameters as plain data: range (V), levels, weights, slope, offset."""
         return {"lo": self.lo, "hi": self.hi, "levels": self.n, "weights": self.weights.tolist(),
                 "slope": self.slope, "offset": self.offset}
 
     @classmethod
     def from_dict(cls, params: dict[str, Any]) -> "Preisach":
+        """Rebuild the model from :meth:`to_dict`'s data."""
         m = cls(lo=params["lo"], hi=params["hi"], weights=params["weights"],
                 slope=params.get("slope", 0.0), offset=params.get("offset", 0.0))
         if "levels" in params and params["levels"] != m.n:
             raise ValueError(f"'levels' is {params['levels']!r} but the weights make a {m.n}-level grid")
         return m
+
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
+        from .._html import model_html
+
+        return model_html(self)
 
 
 class PreisachStepper:

@@ -145,6 +145,7 @@ class RateDependent:
 
     @property
     def is_invertible(self) -> bool:
+        """True when the smallest slope of any branch, lags included, is positive (a stable inverse)."""
         return bool(self.static.is_invertible or self.min_slope > 0) and self.min_slope > 0
 
     @property
@@ -182,9 +183,11 @@ class RateDependent:
         return y
 
     def predict(self, u: Any, dt: float | None = None) -> FloatArray:
+        """The output in µm (the protocol's common unit; the same as :meth:`simulate`)."""
         return self.simulate(u, dt)
 
     def stepper(self, dt: float | None = None) -> "RateDependentStepper":
+        """A streaming evaluator: ``s.step(u_k)`` gives ``y(k)``, on the same kernel."""
         check_dt(dt, self.dt, self.kind)
         return RateDependentStepper(self)
 
@@ -200,11 +203,13 @@ class RateDependent:
 
     # -- files -----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
+        """The parameters as plain data: the nested static model, lags (s), weights, dt, input lag."""
         return {"static": nested_to_dict(self.static), "taus": self.taus.tolist(),
                 "lag_weights": self.lag_weights.tolist(), "dt": self.dt, "input_tau": self.input_tau}
 
     @classmethod
     def from_dict(cls, params: dict[str, Any]) -> "RateDependent":
+        """Rebuild the model from :meth:`to_dict`'s data."""
         static = nested_from_dict(params["static"], "the static part of a rate-dependent model")
         return cls(static=static, taus=params.get("taus", []), lag_weights=params.get("lag_weights", []),
                    dt=params["dt"], input_tau=params.get("input_tau", 0.0))
@@ -214,6 +219,12 @@ class RateDependent:
         return {"static": kind_of(self.static), "input_tau_s": self.input_tau,
                 "output_taus_s": self.taus.tolist(), "lag_weights": self.lag_weights.tolist(),
                 "inverse_is_stable": self.inverse_is_stable}
+
+    def _repr_html_(self) -> str:
+        """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
+        from .._html import model_html
+
+        return model_html(self)
 
 
 #: The name of the first version, when the static part was always a P-I model.
@@ -290,7 +301,7 @@ class RateCompensator(Compensator):
         """The recursion of the module docstring: the static part's inverse with the lags'
         instantaneous gain ``kappa``, the lag factors and weights, the input-lag factor."""
         inv = self._inverse
-        static = inv.inverse_parameters() if hasattr(inv, "inverse_parameters") else getattr(inv, "model").to_dict()
+        static = inv.inverse_parameters() if hasattr(inv, "inverse_parameters") else inv.model.to_dict()
         return {"role": "known = sum c_i a_i s_i; v = S_kappa^-1(x_d - known); s_i = (1 - a_i) v + a_i s_i; "
                         "u = (v - b v_prev) / (1 - b)",
                 "static_inverse": static, "kappa": self.kappa, "lag_factors": np.array(self.model._a),
