@@ -15,6 +15,8 @@ the hold-out error by :data:`MIN_GAIN` to replace a simpler one):
    what looked like delay;
 3. output lags: none, the rate-dependence band, rate and creep (then stage 2);
 4. the static kind and its size: P-I operators, asymmetric P-I output-map knots, Preisach levels;
+   when another kind or size won, the delay over its whole range again with it, with and without
+   the lags (a plain P-I model that cannot follow the loop can pick a long delay for its misfit);
 5. Bouc-Wen (PSO) when the kind allows it and a sample period is known.
 
 Every range follows from the data, nothing from any particular stage (:func:`search_ranges`):
@@ -461,7 +463,37 @@ def _linear_search(sc: _Scorer, base: Structure, ranges: SearchRanges, delay: An
                     c = sc.linear(replace(st0, input_tau=it, delay=d))
                     best = c if c.score < best.score else best
     say("model kind and size" + rule)
-    return _kind_stage(sc, best, linear, n, n_fit, kind_name, statics)
+    chosen = _kind_stage(sc, best, linear, n, n_fit, kind_name, statics)
+    if delay == "auto" and (chosen.structure.static, chosen.structure.size, chosen.structure.map_knots) != \
+            (best.structure.static, best.structure.size, best.structure.map_knots):
+        say("sensor delay and lags again, with the chosen kind" + rule)
+        chosen = _realign(sc, chosen, ranges, itaus, linear, kind_name)
+    return chosen
+
+
+def _realign(sc: _Scorer, best: _Candidate, ranges: SearchRanges, itaus: tuple[float, ...], linear: list[str],
+             kind_name: str | None) -> _Candidate:
+    """The delay over its whole range again, with and without the output lags, once the static kind
+    is chosen: stages 1-3 decided the delay with a plain P-I model, and where that model cannot
+    follow the stage (a saturating or asymmetric loop) the delay that fits it best is not the
+    stage's (a long delay stands in for the misfit); the lags chosen with it may be wrong too."""
+    st0 = best.structure
+    for taus in sorted({st0.taus, ()}, key=len):
+        base = replace(st0, taus=taus, input_tau=0.0)
+        if not _allowed_structure(base, linear, kind_name):
+            continue
+        c = _delay_search(sc, base, 0, ranges.max_delay)
+        near = [c] + [sc.linear(replace(base, input_tau=it, delay=d)) for it in itaus[1:3]
+                      for d in _delays_near(c.structure.delay, ranges.max_delay)]
+        c = min(near, key=lambda x: x.score)
+        cx, bx = _complexity(c.structure), _complexity(best.structure)
+        if cx < bx:  # simpler: kept unless worse by more than the margin
+            best = c if c.score <= best.score / (1.0 - MIN_GAIN) else best
+        elif cx > bx:
+            best = _prefer(best, c)
+        elif c.score < best.score:
+            best = c
+    return best
 
 
 def _kind_stage(sc: _Scorer, best: _Candidate, linear: list[str], n: int | None, n_fit: int,
