@@ -668,6 +668,87 @@ def commission_row(b: Bench) -> None:
           total_s=total, inside_s=inside, outside_s=outside)
 
 
+# -- whole commands against the previous release, in the same run ---------------------------------
+#: The commit the 0.2 round started from (piezohyst 0.1.0 as it was): checked out into a temporary
+#: folder with ``git archive`` and run with the same interpreter, so both sides share everything
+#: but piezohyst's own code.
+BASELINE_COMMIT = "cb9a0f0"
+
+
+def _baseline_src() -> Path | str:
+    """A checkout of :data:`BASELINE_COMMIT`'s ``src`` (cached under benchmarks/out), or why not."""
+    dest = OUT / f"baseline-{BASELINE_COMMIT}"
+    if (dest / "src" / "piezohyst").is_dir():
+        return dest / "src"
+    if shutil.which("git") is None:
+        return "git is not installed"
+    try:
+        archive = subprocess.run(["git", "-C", str(HERE.parent), "archive", BASELINE_COMMIT, "src"],
+                                 capture_output=True, check=True).stdout
+    except subprocess.CalledProcessError as exc:
+        return f"git archive {BASELINE_COMMIT} failed (a shallow clone?): {exc.stderr.decode(errors='replace').strip()[:120]}"
+    import io
+    import tarfile
+
+    tmp = Path(tempfile.mkdtemp(dir=OUT.parent if OUT.exists() else None))
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(tmp, filter="data")
+    OUT.mkdir(exist_ok=True)
+    os.replace(tmp, dest)
+    return dest / "src"
+
+
+def _command_rows(b: Bench, name: str, what: str, args: list[str], target: float, rounds: int) -> None:
+    old = _baseline_src()
+    if isinstance(old, str):
+        b.skip(name, what, f">= {target}x", old)
+        return
+    run = [sys.executable, "-c", "import sys; from piezohyst.cli import main; sys.exit(main(sys.argv[1:]))", *args]
+    with tempfile.TemporaryDirectory() as tmp:
+        envs = {"ours": _env(PYTHONPATH=str(SRC)), "0.1.0": _env(PYTHONPATH=str(old))}
+        best = {k: np.inf for k in envs}
+        for i in range(rounds + 1):  # round 0 warms up (numba's cache, the file cache)
+            for k, env in envs.items():
+                t = time.perf_counter()
+                subprocess.run(run + (["--out", str(Path(tmp) / f"{k}{i}")] if "reproduce" in args else []), env=env,
+                               cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True)
+                if i:
+                    best[k] = min(best[k], time.perf_counter() - t)
+    ratio = best["0.1.0"] / best["ours"]
+    b.row(name, what, ours=f"{fmt_t(best['ours'])}", baseline=f"piezohyst 0.1.0 ({BASELINE_COMMIT}): {fmt_t(best['0.1.0'])}",
+          ratio=ratio, ratio_is="0.1.0 / ours (wall time)", target=f">= {target:g}x", met=ratio >= target,
+          note=f"wall time of the whole command, best of {rounds} interleaved rounds after a warm-up each",
+          ours_s=best["ours"], baseline_s=best["0.1.0"])
+
+
+@bench("cmd-reproduce")
+def cmd_reproduce(b: Bench) -> None:
+    _command_rows(b, "cmd-reproduce", "piezohyst reproduce (the paper's experiment, make demo)", ["reproduce"],
+                  3.0, rounds=2)
+
+
+@bench("cmd-benchmark-bouc-wen")
+def cmd_benchmark_bw(b: Bench) -> None:
+    _command_rows(b, "cmd-benchmark-bouc-wen", "piezohyst benchmark bouc-wen (identification benchmark)",
+                  ["benchmark", "bouc-wen", "--json"], 2.0, rounds=2)
+
+
+@bench("fleet")
+def fleet_row(b: Bench) -> None:
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        b.skip("fleet", "fleet identification on 2 local Dask workers", ">= 1.6x", "dask[distributed] not installed")
+        return
+    sys.path.insert(0, str(HERE))
+    from bench_fleet import bench_fleet
+
+    r = bench_fleet()
+    b.row("fleet", "fleet.identify_many: 40 P-I records on a 2-worker LocalCluster", ours=r["ours"],
+          baseline=r["baseline"], ratio=r["ratio"], ratio_is="serial / cluster", target=r["target"], met=r["met"],
+          note=r["note"], ceiling=r.get("ceiling"))
+
+
 @bench("read-csv")
 def read_csv(b: Bench) -> None:
     import piezohyst as ph

@@ -10,7 +10,7 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import piezohyst as ph
@@ -191,11 +191,16 @@ def test_fitted_compensators_never_chatter(w1, lag, tau_ms, seed, freq):
     pi = ph.PrandtlIshlinskii(np.arange(8) / 8 * 50.0, w)  # its first partial sum may be <= 0
     y = pi.simulate(u) + lag * 0.02 * ph.models.rate.first_order_lag(u, np.exp(-DT / (tau_ms * 1e-3)))
     y = y + rng.normal(0, 1e-3 * np.ptp(y), y.size)
+    assume(np.corrcoef(u, y)[0, 1] > 0.2)  # a stage: its output rises with the input (else refused)
     fit = ph.fit_model(u, y, DT, kinds=["prandtl-ishlinskii", "rate-dependent", "asymmetric-pi"], holdout=0.3)
     lo, hi = np.percentile(y, 15), np.percentile(y, 85)
     x_d = ph.sinusoid(freq, 3, lo, hi, DT)
     cmd = fit.model.compensator(DT).command(x_d)
     assert np.all(np.isfinite(cmd))
-    assert _chatter(cmd, x_d) <= 2
+    # judged after the first cycle: the compensator starts from rest while the reference starts
+    # mid-range, and a rate-dependent inverse's lags settle in the first tens of samples (a
+    # transient, seen once); chatter comes back at every reversal, so cycles 2-3 show it
+    per = int(round(1.0 / (freq * DT)))
+    assert _chatter(cmd[per - SKIP:], x_d[per - SKIP:]) <= 2
     gain = np.ptp(u) / np.ptp(y)
-    assert np.abs(np.diff(cmd[SKIP:])).max() <= 60 * gain * np.abs(np.diff(x_d[SKIP:])).max()
+    assert np.abs(np.diff(cmd[per:])).max() <= 60 * gain * np.abs(np.diff(x_d[per:])).max()

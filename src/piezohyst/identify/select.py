@@ -17,7 +17,11 @@ the hold-out error by :data:`MIN_GAIN` to replace a simpler one):
 4. the static kind and its size: P-I operators, asymmetric P-I output-map knots, Preisach levels;
    when another kind or size won, the delay over its whole range again with it, with and without
    the lags (a plain P-I model that cannot follow the loop can pick a long delay for its misfit);
-5. Bouc-Wen (PSO) when the kind allows it and a sample period is known.
+5. Bouc-Wen (PSO) when the kind allows it and a sample period is known;
+6. the winner, refitted on the whole record, must have a compensator that stays smooth: on
+   sinusoids at both ends of the excitation band its command turns only where the reference
+   turns (:func:`_chatters`); one that chatters (an inverse slope at the margin, amplified by an
+   input lag's lead) is passed over for the next best, and ``info["refused_for_chatter"]`` names it.
 
 Every range follows from the data, nothing from any particular stage (:func:`search_ranges`):
 the excitation's frequency band ``f_lo .. f_hi`` (between 1 % and 98 % of the input's power) and
@@ -329,8 +333,20 @@ def fit_model(
     assert best is not None
     # refit the winner on the whole training record
     say("refit on the whole record")
+    refused: list[str] = []
     if isinstance(best.structure, Structure):
         final, _ = fit_structure(us, ys, dt, best.structure, margin=margin)
+        if dt is not None:
+            # the compensator must stay smooth: a candidate whose inverse chatters is passed over
+            # for the next best (module docstring, "inverses that never chatter")
+            order = sorted((c for c in sc.tried if isinstance(c.structure, Structure) and c is not best),
+                           key=lambda c: c.score)
+            for nxt in order[:CHATTER_RETRIES]:
+                if not _chatters(final.model, dt, ys, ranges):
+                    break
+                refused.append(best.label)
+                best = nxt
+                final, _ = fit_structure(us, ys, dt, best.structure, margin=margin)
     else:
         final = _fit_bouc_wen(us, ys, dt, best.structure[1], seed, bouc_wen_options)  # type: ignore[arg-type]
     span = float(np.ptp(ys))
@@ -343,6 +359,8 @@ def fit_model(
                              "on": "validation data" if vsets else f"the last {n_total - n_fit} samples "
                              f"({100 * (1 - n_fit / n_total):.0f} %) of the training record", "per_set_rmse": best.per_set}
     final.info["search"] = ranges.to_dict()
+    if refused:
+        final.info["refused_for_chatter"] = refused
     final.info["chosen"] = best.label
     final.method = f"selection on held-out data: {best.label}"
     final.warnings = _quality_warnings(final, us, ys, dt, best, span, vsets, n_fit, sc) + final.warnings
@@ -607,6 +625,41 @@ def _as_validation(v: Any, i: int) -> tuple[FloatArray, FloatArray, int]:
             raise ValueError(f"validation set {i}: the first scored sample {first} is outside its {uu.size} samples")
         return uu, yy, first
     raise TypeError(f"validation set {i} must be a Dataset or a (u, y[, first]) tuple")
+
+
+#: How many runners-up the chatter check may try before it keeps the best candidate anyway.
+CHATTER_RETRIES = 8
+
+
+def _chatters(model: Any, dt: float, y: FloatArray, ranges: SearchRanges) -> bool:
+    """Whether the model's compensator chatters on smooth references: sinusoids over the middle
+    70 % of the record's output at the low and high ends of its excitation band, the command's
+    increments changing sign more often than the reference's (beyond one spare flip), after the
+    first cycle. A hysteresis inverse turns where the reference turns and nowhere else."""
+    try:
+        comp = model.compensator(dt)
+    except (ValueError, TypeError, AttributeError):
+        return False  # no compensator: nothing to chatter
+    lo, hi = (float(v) for v in np.percentile(y, [15.0, 85.0]))
+    if not hi > lo:
+        return False
+    for f in sorted({ranges.f_lo or 1.0 / (1000 * dt), ranges.f_hi or 1.0 / (1000 * dt)}):
+        per = max(int(round(1.0 / (f * dt))), 8)
+        if per > 200_000:  # a very slow band: a shorter cycle shows the same reversals
+            per = 200_000
+        k = np.arange(3 * per, dtype=np.float64)
+        x = lo + 0.5 * (hi - lo) * (1.0 - np.cos(2.0 * np.pi * k / per))
+        comp.reset()
+        cmd = np.asarray(comp.command(x), dtype=np.float64)
+        if not np.all(np.isfinite(cmd)):
+            return True
+        du, dx = np.diff(cmd[per:]), np.diff(x[per:])
+        big = np.abs(du) > 1e-9 * max(float(np.ptp(cmd)), 1e-300)
+        flips_u = int(np.count_nonzero(np.diff(np.sign(du[big])) != 0))
+        flips_x = int(np.count_nonzero(np.diff(np.sign(dx[np.abs(dx) > 0])) != 0))
+        if flips_u > flips_x + 1:
+            return True
+    return False
 
 
 def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | None, best: _Candidate,
