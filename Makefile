@@ -40,8 +40,9 @@ lint: $(LINT_STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/piezohyst reproduce --out $(OUT) --force
 
+# two worker processes, one test file each at a time (module fixtures are computed once)
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 # every row a ratio measured in the same run; writes benchmarks/out/results.json (untracked)
 bench: $(STAMP)
