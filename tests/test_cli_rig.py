@@ -1,5 +1,7 @@
 import json
 
+import pytest
+
 from piezohyst.cli import main
 
 
@@ -22,3 +24,19 @@ def test_rig_settings_file_errors(tmp_path, capsys):
     bad.write_text('{"colour": 1}')
     assert main(["rig", "--freq", "1", "--cycles", "1", "--rig-settings", str(bad)]) == 2
     assert "unknown rig setting" in capsys.readouterr().err
+
+
+def test_rig_figure_formats(tmp_path, capsys):
+    from piezohyst.cli import main
+
+    out = tmp_path / "loops"
+    assert main(["rig", "--freq", "1", "--cycles", "1", "--out", str(out), "--format", "pdf,svg"]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["fig2_loops.pdf", "fig2_loops.png", "fig2_loops.svg", "manifest.json", "rig_loops.csv"]
+    assert (out / "fig2_loops.pdf").read_bytes()[:5] == b"%PDF-"
+    assert b"piezohyst" in (out / "fig2_loops.pdf").read_bytes()  # the producer in its metadata
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        main(["rig", "--format", "jpg"])
+    assert stop.value.code == 2
+    assert "unknown figure format(s) jpg; the formats are png, pdf, svg" in capsys.readouterr().err

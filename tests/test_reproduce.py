@@ -10,7 +10,7 @@ from piezohyst.experiments.paper import FIGURES, run_paper_experiment
 
 @pytest.mark.slow
 def test_reproduce_writes_tables_figures_and_report(tmp_path, capsys):
-    assert main(["reproduce", "--out", str(tmp_path), "--json"]) == 0
+    assert main(["reproduce", "--out", str(tmp_path), "--format", "svg", "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     # Tolerances from the spread over seeds 0-7 (run_paper_experiment(seed=s), measured for issue 13):
     #   RMSE um, feedforward alone: Bouc-Wen 1/3/5 Hz 0.0074-0.0101 / 0.0196-0.0279 / 0.0417-0.0497,
@@ -43,6 +43,8 @@ def test_reproduce_writes_tables_figures_and_report(tmp_path, capsys):
     for fname in FIGURES.values():
         data = (tmp_path / fname).read_bytes()
         assert data[:4] == b"\x89PNG" and len(data) > 10_000
+        svg = (tmp_path / fname.replace(".png", ".svg")).read_text(encoding="utf-8")
+        assert svg.lstrip().startswith("<?xml") and "piezohyst 0.2" in svg  # what produced it
     report = (tmp_path / "report.md").read_text()
     assert "Table I" in report and "Table II" in report and "claims" in report
     for fname in FIGURES.values():

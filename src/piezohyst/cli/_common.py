@@ -205,6 +205,17 @@ def seed(text: str) -> int:
     return _integer(text, 0, "an integer >= 0")
 
 
+def figure_formats(text: str) -> tuple[str, ...]:
+    """``--format pdf,svg``: figure formats (png, pdf, svg), checked without importing matplotlib."""
+    known = ("png", "pdf", "svg")
+    items = [f.strip().lower().lstrip(".") for f in text.split(",") if f.strip()]
+    bad = [f for f in items if f not in known]
+    if bad or not items:
+        raise argparse.ArgumentTypeError(f"unknown figure format(s) {', '.join(bad) or repr(text)}; "
+                                         f"the formats are {', '.join(known)}")
+    return tuple(dict.fromkeys(items))
+
+
 def freqs(text: str) -> list[float]:
     """``--freq 1,3,5``: positive frequencies in Hz."""
     try:

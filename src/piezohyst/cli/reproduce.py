@@ -5,7 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import UsageError, add_rig_options, console, print_json, rig_from_args, rig_rate_note
+from ._common import (
+    UsageError,
+    add_rig_options,
+    console,
+    figure_formats,
+    print_json,
+    rig_from_args,
+    rig_rate_note,
+)
 
 
 def _check_rig_for_experiment(rig, args) -> None:  # type: ignore[no-untyped-def]
@@ -34,7 +42,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     out = Path(args.out) if args.out else None
     if out is not None:  # refuse before an expensive run, not after
-        results_folder(out, force=args.force).check()
+        results_folder(out, force=args.force, formats=args.format).check()
     rig = rig_from_args(args)
     _check_rig_for_experiment(rig, args)
     if args.json:
@@ -53,7 +61,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             exp = run_paper_experiment(rig, seed=args.seed, on_step=on_step)
     written = []
     if out is not None:
-        written = [str(p) for p in write_results(exp, out, force=args.force)]
+        written = [str(p) for p in write_results(exp, out, force=args.force, formats=args.format)]
     if args.json:
         print_json({**exp.to_dict(), "written": written})
         return 0
@@ -126,6 +134,8 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--out", default=None, help="folder for report.md, results.json and the figures (a new or empty "
                    "folder; written as one set, with a manifest.json)")
     p.add_argument("--force", action="store_true", help="replace the files of a previous 'reproduce --out' in that folder")
+    p.add_argument("--format", type=figure_formats, default=("png",),
+                   help="figure formats besides PNG, comma-separated: pdf, svg (e.g. --format pdf,svg)")
     p.add_argument("--json", action="store_true", help="print the results as JSON only")
     add_rig_options(p)
 

@@ -6,8 +6,8 @@ import argparse
 from functools import partial
 from pathlib import Path
 
-from ._common import (UsageError, add_rig_options, check_sinusoids, console, finite_float, freqs, guarded,
-                      positive_float, print_json, rig_from_args, rig_rate_note)
+from ._common import (UsageError, add_rig_options, check_sinusoids, console, figure_formats, finite_float, freqs,
+                      guarded, positive_float, print_json, rig_from_args, rig_rate_note)
 
 #: The files ``rig --out`` writes (one set, with its manifest.json)
 RIG_FILES = ("fig2_loops.png", "rig_loops.csv")
@@ -21,7 +21,9 @@ def cmd_rig(args: argparse.Namespace) -> int:
     if not args.u_low < args.u_high:
         raise UsageError(f"--u-low ({args.u_low:g} V) must be below --u-high ({args.u_high:g} V)")
     out = Path(args.out) if args.out else None
-    folder = OutputFolder(out, RIG_FILES, force=args.force) if out is not None else None
+    fmts = tuple(dict.fromkeys(("png", *args.format)))
+    fig_files = [RIG_FILES[0].rsplit(".", 1)[0] + "." + f for f in fmts]
+    folder = OutputFolder(out, (*fig_files, RIG_FILES[1]), force=args.force) if out is not None else None
     if folder is not None:  # refuse before the run, not after it
         folder.check()
     rig = rig_from_args(args)
@@ -48,7 +50,7 @@ def cmd_rig(args: argparse.Namespace) -> int:
                      "clipped_samples": ds.meta["clipped_samples"]})
         runs.append((f"{f:g} Hz", ds.u[-period:], ds.y[-period:]))
         columns.append((f, ds))
-    fig_path = csv_path = None
+    csv_path = None
     if folder is not None and out is not None:
         from .._fileio import atomic_write, producer
 
@@ -69,11 +71,11 @@ def cmd_rig(args: argparse.Namespace) -> int:
                 np.savetxt(fh, np.column_stack(cols), delimiter=",", fmt="%.9g")
 
         with folder as tmp_dir:  # both files appear together, or neither
-            plots.save(lines[0].axes, tmp_dir / RIG_FILES[0], force=True)
+            plots.save_formats(lines[0].axes, tmp_dir / RIG_FILES[0], fmts, force=True)
             atomic_write(tmp_dir / RIG_FILES[1], write, force=True)
-        fig_path, csv_path = out / RIG_FILES[0], out / RIG_FILES[1]
+        csv_path = out / RIG_FILES[1]
     result = {"rig": rig.settings.to_dict(), "seed": args.seed, "loops": rows,
-              "written": [str(fig_path), str(csv_path)] if out else []}
+              "written": [str(out / f) for f in fig_files] + [str(csv_path)] if out else []}
     if args.json:
         print_json(result)
         return 0
@@ -88,7 +90,7 @@ def cmd_rig(args: argparse.Namespace) -> int:
     con = console()
     con.print(t)
     if out is not None:
-        con.print(f"wrote {fig_path} and {csv_path}")
+        con.print(f"wrote {', '.join(result['written'])}")
     return 0
 
 
@@ -102,6 +104,8 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--out", default=None,
                    help="folder for fig2_loops.png and rig_loops.csv (a new or empty folder; written as one set)")
     p.add_argument("--force", action="store_true", help="replace the files of a previous 'rig --out' in that folder")
+    p.add_argument("--format", type=figure_formats, default=("png",),
+                   help="figure formats besides PNG, comma-separated: pdf, svg (e.g. --format pdf)")
     p.add_argument("--json", action="store_true", help="print the figures as JSON only")
     add_rig_options(p)
 

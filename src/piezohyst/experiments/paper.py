@@ -442,18 +442,26 @@ def report_markdown(exp: PaperExperiment) -> str:
 RESULT_FILES = (*FIGURES.values(), "report.md", "results.json")
 
 
-def results_folder(out: Any, *, force: bool = False) -> Any:
+def results_folder(out: Any, *, force: bool = False, formats: Any = ("png",)) -> Any:
     """The :class:`~piezohyst._fileio.OutputFolder` a run's results go to; ``.check()`` it before
-    the run to refuse a bad or occupied folder before the work, not after."""
+    the run to refuse a bad or occupied folder before the work, not after. ``formats``: the
+    figures' formats (PNG is always among them: the report embeds it)."""
     from .._fileio import OutputFolder
 
-    return OutputFolder(out, RESULT_FILES, force=force)
+    return OutputFolder(out, (*figure_files(_with_png(formats)), "report.md", "results.json"), force=force)
 
 
-def write_results(exp: PaperExperiment, out: Any, *, force: bool = False) -> list[Any]:
+def _with_png(formats: Any) -> tuple[str, ...]:
+    from ..plots import check_formats
+
+    return tuple(dict.fromkeys(("png", *check_formats(formats))))
+
+
+def write_results(exp: PaperExperiment, out: Any, *, force: bool = False, formats: Any = ("png",)) -> list[Any]:
     """Write the figures, ``report.md`` and ``results.json`` of ``exp`` into the folder ``out``,
     as one set: they appear together or not at all (an interrupted run leaves the previous set
-    or nothing), and a previous set is replaced only with ``force``.
+    or nothing), and a previous set is replaced only with ``force``. The figures are written as
+    PNG (embedded in the report) and in each further format of ``formats`` (``"pdf"``, ``"svg"``).
 
     Returns the paths written (in the final folder).
     """
@@ -461,9 +469,10 @@ def write_results(exp: PaperExperiment, out: Any, *, force: bool = False) -> lis
 
     from .._fileio import atomic_write_text, dumps_strict, producer
 
-    folder = results_folder(out, force=force)
+    fmts = _with_png(formats)
+    folder = results_folder(out, force=force, formats=fmts)
     with folder as tmp:
-        paths = write_figures(exp, tmp, force=True)
+        paths = write_figures(exp, tmp, force=True, formats=fmts)
         atomic_write_text(tmp / "report.md", report_markdown(exp), force=True)
         doc = {"producer": producer(), **exp.to_dict()}
         atomic_write_text(tmp / "results.json", dumps_strict(doc, indent=2) + "\n", force=True)
