@@ -730,7 +730,8 @@ def cmd_reproduce(b: Bench) -> None:
 @bench("cmd-benchmark-bouc-wen")
 def cmd_benchmark_bw(b: Bench) -> None:
     _command_rows(b, "cmd-benchmark-bouc-wen", "piezohyst benchmark bouc-wen (identification benchmark)",
-                  ["benchmark", "bouc-wen", "--json"], 2.0, rounds=2)
+                  ["benchmark", "bouc-wen", "--json", "--data",
+                   str(HERE.parent / "data" / "bouc-wen-benchmark" / "bouc-wen.mat")], 3.0, rounds=2)
 
 
 @bench("fleet")
@@ -838,6 +839,8 @@ except Exception:
     pass  # a changed signature: the kernel shows up as not exercised
 elapsed = time.perf_counter() - t0
 for m in pkgutil.walk_packages(ph.__path__, "piezohyst."):
+    if m.name.endswith("__main__"):  # running it would run the command line
+        continue
     try:
         importlib.import_module(m.name)
     except Exception:
