@@ -118,3 +118,38 @@ def test_track_best_cli_with_variants(capsys):
     assert [r["freq_hz"] for r in res["results"]] == [1.0, 5.0]
     assert all(r["e_max_percent"] < 2.0 for r in res["results"])
     assert res["controller"]["delay_samples"] >= 0
+
+
+class _Backlash500Hz:
+    """A pure backlash (16 V wide) with a curved output, sampled at 500 Hz, 2 samples of delay: a
+    stage whose loop is flat for 16 V after each reversal. Found by trying stages not in the zoo."""
+
+    dt, u_range = 2e-3, (0.0, 120.0)
+
+    def reset(self):
+        self.z, self.line, self.rng = 0.0, [0.0, 0.0], np.random.default_rng(0)
+
+    def step(self, u):
+        u = min(max(u, 0.0), 120.0)
+        self.z = min(max(self.z, u - 8.0), u + 8.0)
+        self.line.append(0.01 * (0.5 * self.z + 0.002 * self.z**2) + self.rng.normal(0.0, 0.002))
+        return self.line.pop(0)
+
+
+def test_learning_that_drives_the_loop_to_the_limits_is_dropped_not_fatal():
+    # at 5 Hz (100 samples a cycle) the safe step limit cannot cross the 16 V gap in time, and
+    # the first learned correction threw the loop between the amplifier's limits: track() raised
+    # UnstableLoopError. Now the correction is dropped, learning stops, and the result says why.
+    stage = _Backlash500Hz()
+    stage.reset()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ctl = ph.commission(stage)
+    lo, hi = np.percentile(ctl.identification.y, [10, 90])
+    out = ctl.track(ph.sinusoid(5.0, 6, lo, hi, stage.dt), period=100)
+    assert out.info["learning"] and "oscillates between the amplifier's limits" in out.info["learning_stopped"]
+    assert np.all(np.isfinite(out.output))
+    # without learning the same loop runs as before, and at 1 Hz learning works undisturbed
+    assert ctl.track(ph.sinusoid(5.0, 6, lo, hi, stage.dt), learning=False, period=100).info["learning_stopped"] is None
+    slow = ctl.track(ph.sinusoid(1.0, 4, lo, hi, stage.dt), period=500)
+    assert slow.info["learning_stopped"] is None and slow.e_max_percent < 3.0

@@ -70,7 +70,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ._validation import FloatArray, as_signal
-from .control.tracking import LoopWatch, TrackingResult, lead_in
+from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead_in
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
@@ -265,6 +265,8 @@ class CommissionedController:
         best_rms = np.inf
         learning_on = learn
         cycle_rms: list[float] = []
+        learning_stopped: str | None = None
+        learned = False  # a correction has been applied in this run
         vpu = self.volts_per_um
         span = float(np.ptp(r))
         watch = LoopWatch(r, u_range=guard.u_range, feedback_on=pid is not None,
@@ -290,7 +292,21 @@ class CommissionedController:
                 j = min(k + d, n - 1)
                 target = r[j] + (corr[j % p] if corr is not None else 0.0)
                 uk = ff.step(target) + fb
-                watch.command(k, uk)
+                try:
+                    watch.command(k, uk)
+                except UnstableLoopError as exc:
+                    # a learned correction drove the loop to the amplifier's limits (a stage
+                    # whose loop is flat after reversals turns a small correction of the target
+                    # into a large one of the command): drop it, stop learning, and give the loop
+                    # one window to settle; without learning, or once more, the gains make the
+                    # loop unstable, as before
+                    if not learned or learning_stopped is not None:
+                        raise
+                    corr = np.zeros(p)
+                    best_corr = corr
+                    learning_on = False
+                    learning_stopped = exc.reason
+                    watch.n_lo = watch.n_hi = 0
                 yk = guard.step(uk)
                 sat = guard.last_saturation
                 clipped_at[k + d] = sat != 0
@@ -312,6 +328,7 @@ class CommissionedController:
                             best_rms, best_corr = rms, corr.copy()  # type: ignore[union-attr]
                             # the error of cycle m shows the correction applied in it; align by phase
                             corr = _lowpass_periodic(corr + self.learning_gain * np.roll(e, -(c0 % p)), dt, cutoff)  # type: ignore[operator]
+                            learned = True
                             if len(cycle_rms) > 2 and rms > 0.95 * cycle_rms[-2]:
                                 learning_on = False
                                 corr = best_corr
@@ -324,6 +341,7 @@ class CommissionedController:
                               clipped=guard.clipped, label=label,
                               info={"mode": "step", "feedback": pid is not None, "learning": learn,
                                     "cycle_rms_um": cycle_rms, "lead_in_samples": lead_samples,
+                                    "learning_stopped": learning_stopped,
                                     "safety": guard.counts()})
 
     def _track_buffered(self, r: FloatArray, *, learning: bool, period: int | None, label: str,
