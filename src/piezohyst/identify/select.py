@@ -412,9 +412,7 @@ def _polish(sc: _Scorer, best: _Candidate, ranges: SearchRanges, delay: Any, lin
             if not _allowed_structure(mv, linear, kind_name):
                 continue
             c = sc.linear(mv)
-            simpler = _complexity(mv) < _complexity(best.structure)
-            if (simpler and c.score <= best.score / (1.0 - MIN_GAIN)) or c.score < (1.0 - MIN_GAIN) * best.score \
-                    or (not simpler and _complexity(mv) == _complexity(best.structure) and c.score < best.score):
+            if _choose(best, c) is c:
                 best, improved = c, True
         if not improved:
             break
@@ -503,15 +501,19 @@ def _realign(sc: _Scorer, best: _Candidate, ranges: SearchRanges, itaus: tuple[f
         c = _delay_search(sc, base, 0, ranges.max_delay)
         near = [c] + [sc.linear(replace(base, input_tau=it, delay=d)) for it in itaus[1:3]
                       for d in _delays_near(c.structure.delay, ranges.max_delay)]
-        c = min(near, key=lambda x: x.score)
-        cx, bx = _complexity(c.structure), _complexity(best.structure)
-        if cx < bx:  # simpler: kept unless worse by more than the margin
-            best = c if c.score <= best.score / (1.0 - MIN_GAIN) else best
-        elif cx > bx:
-            best = _prefer(best, c)
-        elif c.score < best.score:
-            best = c
+        best = _choose(best, min(near, key=lambda x: x.score))
     return best
+
+
+def _choose(best: _Candidate, c: _Candidate) -> _Candidate:
+    """``c`` or ``best``: a simpler structure wins unless worse by more than :data:`MIN_GAIN`, a more
+    complex one only by more than it, one as complex by any margin."""
+    cx, bx = _complexity(c.structure), _complexity(best.structure)
+    if cx < bx:
+        return c if c.score <= best.score / (1.0 - MIN_GAIN) else best
+    if cx > bx:
+        return _prefer(best, c)
+    return c if c.score < best.score else best
 
 
 def _kind_stage(sc: _Scorer, best: _Candidate, linear: list[str], n: int | None, n_fit: int,
@@ -649,8 +651,7 @@ def _chatters(model: Any, dt: float, y: FloatArray, ranges: SearchRanges) -> boo
             per = 200_000
         k = np.arange(3 * per, dtype=np.float64)
         x = lo + 0.5 * (hi - lo) * (1.0 - np.cos(2.0 * np.pi * k / per))
-        comp.reset()
-        cmd = np.asarray(comp.command(x), dtype=np.float64)
+        cmd = np.asarray(comp.command(x), dtype=np.float64)  # from the initial state
         if not np.all(np.isfinite(cmd)):
             return True
         du, dx = np.diff(cmd[per:]), np.diff(x[per:])
