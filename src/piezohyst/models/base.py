@@ -262,3 +262,26 @@ class Compensator:
         state, its reset, and a function ``static double NAME(double desired_um)``; return NAME.
         It must compute what :meth:`_step` computes, operation for operation."""
         raise TypeError(f"{type(self).__name__} has no C implementation (its kind does not provide to_c)")
+
+
+class InverseCompensator(Compensator):
+    """A compensator that is one inverse object with the output limits of :class:`Compensator`:
+    the inverse provides ``reset()``, ``step(x_d)``, ``inverse_parameters()`` and ``to_c(c,
+    prefix)``, and this class passes each through (the numerically inverted kinds use it)."""
+
+    def __init__(self, model: Any, inverse: Any, *, u_range: Any = None, max_slew: float | None = None):
+        super().__init__(u_range=u_range, max_slew=max_slew)
+        self.model = model
+        self._inv = inverse
+
+    def _reset(self) -> None:
+        self._inv.reset()
+
+    def _step(self, x_d: float) -> float:
+        return self._inv.step(x_d)
+
+    def inverse_parameters(self) -> dict[str, Any]:
+        return self._inv.inverse_parameters()
+
+    def to_c(self, c: Any, prefix: str) -> str:
+        return self._inv.to_c(c, prefix)

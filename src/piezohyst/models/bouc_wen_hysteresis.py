@@ -31,7 +31,7 @@ import numpy as np
 
 from .._numba import njit
 from .._validation import FloatArray, as_scalar, as_signal
-from .base import Compensator, check_dt, register_kind
+from .base import InverseCompensator, check_dt, register_kind
 from .bouc_wen import bw_h_update, bw_hysteresis
 
 #: Halvings of the inverse's bracket before the final secant step.
@@ -287,22 +287,8 @@ static double {fn}(double target)
         return fn
 
 
-class BoucWenHysteresisCompensator(Compensator):
+class BoucWenHysteresisCompensator(InverseCompensator):
     """The numerical inverse (module docstring): desired µm in, volts out."""
 
     def __init__(self, model: BoucWenHysteresis, *, u_range: Any = None, max_slew: float | None = None):
-        super().__init__(u_range=u_range, max_slew=max_slew)
-        self.model = model
-        self._inv = BoucWenHysteresisInverse(model)
-
-    def _reset(self) -> None:
-        self._inv.reset()
-
-    def _step(self, x_d: float) -> float:
-        return self._inv.step(x_d)
-
-    def inverse_parameters(self) -> dict[str, Any]:
-        return self._inv.inverse_parameters()
-
-    def to_c(self, c: Any, prefix: str) -> str:
-        return self._inv.to_c(c, prefix)
+        super().__init__(model, BoucWenHysteresisInverse(model), u_range=u_range, max_slew=max_slew)

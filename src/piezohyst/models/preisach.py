@@ -47,7 +47,7 @@ import numpy as np
 
 from .._numba import njit
 from .._validation import FloatArray, as_scalar, as_signal, frozen
-from .base import Compensator, check_dt, register_kind
+from .base import InverseCompensator, check_dt, register_kind
 
 #: Halvings of the inverse's bracket before the final secant step.
 BISECTION_STEPS = 60
@@ -485,22 +485,8 @@ static double {fn}(double target)
         return fn
 
 
-class PreisachCompensator(Compensator):
+class PreisachCompensator(InverseCompensator):
     """The Preisach model's feedforward: its numerical inverse (module docstring)."""
 
     def __init__(self, model: Preisach, *, u_range: Any = None, max_slew: float | None = None):
-        super().__init__(u_range=u_range, max_slew=max_slew)
-        self.model = model
-        self._inv = PreisachInverse(model)
-
-    def _reset(self) -> None:
-        self._inv.reset()
-
-    def _step(self, x_d: float) -> float:
-        return self._inv.step(x_d)
-
-    def inverse_parameters(self) -> dict[str, Any]:
-        return self._inv.inverse_parameters()
-
-    def to_c(self, c: Any, prefix: str) -> str:
-        return self._inv.to_c(c, prefix)
+        super().__init__(model, PreisachInverse(model), u_range=u_range, max_slew=max_slew)
