@@ -116,6 +116,17 @@ def _crossing(h: float, kap: float, mu: float) -> float:  # pragma: no cover - c
 
 
 @njit
+def _regime(h: float, s: float, ad1: float) -> float:  # pragma: no cover - compiled
+    """The sign that selects eq. (8)'s regime over an increment of direction ``s``: the sign of h,
+    or at h = 0 the direction the drive ``s * ad1`` pushes it."""
+    if h > 0.0:
+        return 1.0
+    if h < 0.0:
+        return -1.0
+    return s if ad1 >= 0.0 else -s
+
+
+@njit
 def bw_h_update(h: float, du: float, ad1: float, beta: float, gamma: float) -> float:  # pragma: no cover
     """Exact solution of eq. (8) over one input increment ``du`` (rate independent).
 
@@ -130,12 +141,7 @@ def bw_h_update(h: float, du: float, ad1: float, beta: float, gamma: float) -> f
         return h
     s = 1.0 if du > 0.0 else -1.0
     lam = abs(du)
-    if h > 0.0:
-        sig = 1.0
-    elif h < 0.0:
-        sig = -1.0
-    else:
-        sig = s if ad1 >= 0.0 else -s
+    sig = _regime(h, s, ad1)
     mu = (beta + gamma * s * sig) * lam
     kap = mu * h - ad1 * du
     h1 = h - kap * _h_phi1(mu)
@@ -493,12 +499,7 @@ def _foh_general(p: FloatArray, u0: float, h: float, x: float, v: float, du: flo
     bd = p[_P_BD]
     s = 1.0 if du >= 0.0 else -1.0
     lam = abs(du)
-    if h > 0.0:
-        sig = 1.0
-    elif h < 0.0:
-        sig = -1.0
-    else:
-        sig = s if ad1 >= 0.0 else -s
+    sig = _regime(h, s, ad1)
     mu = (p[2] + p[3] * s * sig) * lam
     kap = mu * h - ad1 * du
     f0 = d1 * u0 - h
