@@ -56,6 +56,22 @@ def dumps_strict(obj: Any, **kw: Any) -> str:
     return json.dumps(to_jsonable(obj), allow_nan=False, **kw)
 
 
+def loads_strict(text: str, *, bad_constant: Callable[[str], Exception],
+                 bad_number: Callable[[str], Exception]) -> Any:
+    """``json.loads`` as the standard defines JSON, the reverse of :func:`dumps_strict`: ``NaN`` and
+    ``Infinity`` raise ``bad_constant(name)``, a number beyond float range ``bad_number(text)``."""
+    def constant(name: str) -> Any:
+        raise bad_constant(name)
+
+    def number(token: str) -> float:
+        v = float(token)
+        if not math.isfinite(v):
+            raise bad_number(token)
+        return v
+
+    return json.loads(text, parse_constant=constant, parse_float=number)
+
+
 class OutputError(OSError, ValueError):
     """An output path that cannot be written: a file where a folder is expected, a folder where a
     file is expected, a folder nobody can write in. The message names the path.

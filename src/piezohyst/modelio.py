@@ -186,16 +186,13 @@ def model_from_dict(doc: Any, *, source: str = "model") -> Any:
 
 def _strict_loads(text: str, source: str) -> Any:
     """JSON as the standard defines it: NaN, Infinity and numbers beyond float range are refused."""
-    def constant(name: str) -> Any:
-        raise ModelFileError(f"{source}: {name} is not a JSON number; a model file holds finite numbers only")
+    from ._fileio import loads_strict
 
-    def number(text: str) -> float:
-        v = float(text)
-        if not math.isfinite(v):
-            raise ModelFileError(f"{source}: the number {text[:40]} is beyond double precision")
-        return v
-
-    return json.loads(text, parse_constant=constant, parse_float=number)
+    return loads_strict(
+        text,
+        bad_constant=lambda name: ModelFileError(f"{source}: {name} is not a JSON number; a model file holds "
+                                                 "finite numbers only"),
+        bad_number=lambda num: ModelFileError(f"{source}: the number {num[:40]} is beyond double precision"))
 
 
 def load_model_document(path: str | os.PathLike[str]) -> dict[str, Any]:

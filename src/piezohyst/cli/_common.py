@@ -322,17 +322,12 @@ def read_json_file(path: str, what: str, limit: int = MAX_SETTINGS_BYTES) -> Any
     except UnicodeDecodeError:
         raise UsageError(f"{p}: not a text file (cannot decode it as UTF-8)") from None
 
-    def constant(name: str) -> Any:
-        raise UsageError(f"{p}: {name} is not a JSON number (write a finite number)")
-
-    def number(text: str) -> float:
-        v = float(text)
-        if not math.isfinite(v):
-            raise UsageError(f"{p}: {text} is out of range for a number")
-        return v
+    from .._fileio import loads_strict
 
     try:
-        return json.loads(text, parse_constant=constant, parse_float=number)
+        return loads_strict(text, bad_constant=lambda name: UsageError(f"{p}: {name} is not a JSON number "
+                                                                       "(write a finite number)"),
+                            bad_number=lambda num: UsageError(f"{p}: {num} is out of range for a number"))
     except json.JSONDecodeError as exc:
         raise UsageError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
     except RecursionError:
