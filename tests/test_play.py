@@ -298,3 +298,28 @@ def test_pi_gram_refuses_bad_input(kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         P.pi_gram(args.pop("u"), args.pop("thresholds"), args.pop("y"), **args)
+
+
+@given(u=piecewise_signals(), dmax=st.integers(0, 6), frac=st.floats(0.3, 0.9), m=st.integers(1, 70))
+def test_split_normal_equations_add_up_to_the_whole_record(u, dmax, frac, m):
+    # fit_pi(delay="auto") takes the fitting part's and the held-out rows' normal equations
+    # from one pass: the part's are pi_gram's of the first n_fit samples, and part + held out
+    # are pi_gram's of the whole record, for every delay
+    from piezohyst.identify.pi import _split_gram
+
+    if u.size < 4 * dmax + 16:
+        u = np.concatenate([u, np.linspace(u[-1], -u[-1], 4 * dmax + 16)])
+    n = u.size
+    y = np.cos(np.arange(n) * 0.7) + u
+    r = np.linspace(0.0, np.ptp(u) / 2 + 1.0, m)
+    delays = np.arange(dmax + 1, dtype=np.int64)
+    n_fit = int(round(frac * n))
+    part, held = _split_gram(u, y, r, delays, n_fit)
+    ref_part = P.pi_gram(u[:n_fit], r, y[:n_fit], delays=delays)
+    whole = P.pi_gram(u, r, y, delays=delays)
+    scale = (np.abs(u).max() + r.max() + 1) * (np.abs(y).max() + np.abs(u).max() + r.max() + 1) * n
+    for name in ("gram", "zty", "zsum", "ysum", "yty"):
+        np.testing.assert_allclose(getattr(part, name), getattr(ref_part, name), rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(getattr(part, name) + getattr(held, name), getattr(whole, name),
+                                   rtol=0, atol=1e-11 * scale)
+    np.testing.assert_array_equal(held.n_samples, n - n_fit)

@@ -50,10 +50,15 @@ def bounded_lstsq_gram(gram: FloatArray, atb: FloatArray, lb: FloatArray, ub: Fl
     g = g / np.outer(norms, norms)
     b = b / norms
     lbs, ubs = lb * norms, ub * norms
+    # a convex problem: when the unconstrained optimum lies within the bounds it is the bounded
+    # one, found with one factorisation instead of the active-set iterations
+    rg = _cholesky(g)
+    x0 = np.linalg.solve(rg, np.linalg.solve(rg.T, b))
+    if np.all(np.isfinite(x0)) and np.all(x0 >= lbs) and np.all(x0 <= ubs):
+        return np.asarray(x0 / norms)
     if np.any(np.isfinite(ubs)):
-        r = _cholesky(g)
-        rhs = np.linalg.solve(r.T, b)
-        res = lsq_linear(r, rhs, bounds=(lbs, ubs), method="bvls", tol=1e-12)
+        rhs = np.linalg.solve(rg.T, b)
+        res = lsq_linear(rg, rhs, bounds=(lbs, ubs), method="bvls", tol=1e-12)
         return np.asarray(res.x / norms)
     free = ~np.isfinite(lbs)
     bnd = ~free

@@ -24,7 +24,7 @@ import numpy as np
 
 from .._validation import FloatArray, as_scalar
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
-from ..models.play import pi_gram, play_outputs
+from ..models.play import GramStats, _gram_stats, default_chunk_rows, pi_gram, play_outputs
 from ..pso import pso_minimize
 from .lsq import bounded_lstsq_gram
 from .result import FitResult, paired_signals as _pair, unpack_data
@@ -56,11 +56,38 @@ def _coefficients(x: FloatArray, nr: int) -> FloatArray:
     return out
 
 
-def _difference(whole: Any, part: Any, i: int, fit_offset: bool) -> tuple[FloatArray, FloatArray, float, int]:
-    """Normal equations of the rows in ``whole`` but not in ``part`` (statistics add over rows)."""
-    g1, b1, c1, n1 = whole.normal_equations(i, offset=fit_offset)
-    g0, b0, c0, n0 = part.normal_equations(i, offset=fit_offset)
-    return g1 - g0, b1 - b0, c1 - c0, n1 - n0
+def _split_gram(us: FloatArray, ys: FloatArray, r: FloatArray, delays: Any, n_fit: int) -> tuple[Any, Any]:
+    """Streamed normal equations, for every delay ``d``, of the rows ``u[k]`` paired with
+    ``y[k + d]`` whose output lies before ``n_fit`` (the fitting part: ``k < n_fit - d``) and
+    of the rest (held out: ``y[n_fit:]``), in one pass over the record.
+
+    The part's pass stops with the operators' states at ``K = n_fit - max(delays)``; the
+    held-out pass continues from there over ``u[K:]``, so each delay's first ``max(delays) - d``
+    rows of it belong to the part and are taken off again (a few rows, outputs recomputed).
+    """
+    dmax = int(delays.max())
+    cut = n_fit - dmax
+    part, at_cut = _gram_stats(us[:n_fit], r, ys[:n_fit], delays, np.zeros(r.size), default_chunk_rows(r.size))
+    rest, _ = _gram_stats(us[cut:], r, ys[cut:], delays, at_cut.copy(), default_chunk_rows(r.size))
+    overlap = play_outputs(us[cut:n_fit], r, at_cut.copy())  # the rows k = cut .. n_fit - 1
+    gram, zty, zsum = rest.gram.copy(), rest.zty.copy(), rest.zsum.copy()
+    ysum, yty = rest.ysum.copy(), rest.yty.copy()
+    for i, d in enumerate(delays):
+        e, ye = overlap[: dmax - d], ys[cut + d: n_fit]
+        gram[i] -= e.T @ e
+        zty[i] -= e.T @ ye
+        zsum[i] -= e.sum(axis=0)
+        ysum[i] -= ye.sum()
+        yty[i] -= ye @ ye
+    held = GramStats(delays=delays, n_samples=np.full(delays.size, us.size - n_fit), gram=gram, zty=zty,
+                     zsum=zsum, ysum=ysum, yty=yty)
+    return part, held
+
+
+def _sum_gram(a: Any, b: Any) -> Any:
+    """The normal equations of two disjoint sets of rows together (they add)."""
+    return GramStats(delays=a.delays, n_samples=a.n_samples + b.n_samples, gram=a.gram + b.gram,
+                     zty=a.zty + b.zty, zsum=a.zsum + b.zsum, ysum=a.ysum + b.ysum, yty=a.yty + b.yty)
 
 
 def pi_regressors(u: FloatArray, thresholds: FloatArray) -> FloatArray:
@@ -157,16 +184,15 @@ def fit_pi(
         margin = 1e-3 * slope
     info: dict[str, Any] = {"n_operators": nr, "margin": margin}
     if auto:
-        # the delay that predicts held-out data best (the last 30 %), from two passes of streamed
-        # normal equations for every delay at once: the fitting part's, and the whole record's
-        # (the held-out rows' are the difference)
-        n_fit = int(round(0.7 * us.size))
-        part = pi_gram(us[:n_fit], r, ys[:n_fit], delays=delays)
-        whole = pi_gram(us, r, ys, delays=delays)
+        # the delay that predicts held-out data best (the last 30 %), from one pass of streamed
+        # normal equations for every delay at once, split into the fitting part's and the
+        # held-out rows' (the whole record's are their sum)
+        part, held = _split_gram(us, ys, r, np.asarray(delays, dtype=np.int64), int(round(0.7 * us.size)))
+        whole = _sum_gram(part, held)
         hold: dict[int, float] = {}
         for i, d in enumerate(delays):
             x = _lsq_from_gram(part, i, nr, margin, fit_offset)
-            g, b, c, m = _difference(whole, part, i, fit_offset)
+            g, b, c, m = held.normal_equations(i, offset=fit_offset)
             coef = _coefficients(x, nr)
             hold[d] = float(np.sqrt(max(float(c - 2 * coef @ b + coef @ g @ coef), 0.0) / m))
         delay = min(hold, key=lambda d: hold[d])

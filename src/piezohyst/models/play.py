@@ -524,6 +524,12 @@ def play_operator(x: object, r: float, y0: float = 0.0) -> FloatArray:
 
 # -- streamed normal equations -------------------------------------------------------------------
 _CHUNK_BYTES = 16 * 2**20  # the operator outputs held at once by pi_gram's BLAS path
+
+
+def default_chunk_rows(n_operators: int) -> int:
+    """Rows of operator outputs :func:`pi_gram` computes at once above 64 operators (16 MiB)."""
+    return max(1024, _CHUNK_BYTES // (8 * n_operators))
+
 # Up to this many operators pi_gram accumulates in one compiled, single-threaded pass (blocks of
 # _GRAM_BLOCK rows kept in cache); above it, chunk by chunk through BLAS, whose blocked matrix
 # product wins once the n^2 / 2 products per row dominate.
@@ -557,10 +563,10 @@ def _gram_into(
                 acc += bi[k]
             colsum[i] += acc
             for q in range(nd):
-                yq = y[a + delays[q]:]
+                off = a + delays[q]
                 acc = 0.0
                 for k in range(nb):
-                    acc += bi[k] * yq[k]
+                    acc += bi[k] * y[off + k]
                 zty[i, q] += acc
             for j in range(i, m):
                 bj = buf[j]
@@ -682,9 +688,18 @@ def pi_gram(
         raise ValueError(f"delays must lie in 0 .. {n - 2} (N - 2) for {n} samples, got {delays!r}")
     d_arr = d_arr.astype(np.int64)
     if chunk_rows is None:
-        chunk_rows = max(1024, _CHUNK_BYTES // (8 * m))
+        chunk_rows = default_chunk_rows(m)
     if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, (int, np.integer)) or chunk_rows < 1:
         raise ValueError(f"chunk_rows must be a positive integer, got {chunk_rows!r}")
+    return _gram_stats(us, r, ys, d_arr, z, int(chunk_rows))[0]
+
+
+def _gram_stats(us: FloatArray, r: FloatArray, ys: FloatArray, d_arr: Any, z: FloatArray,
+                chunk_rows: int) -> tuple[GramStats, FloatArray]:
+    """:func:`pi_gram` on validated arrays (``z``: the initial states, overwritten), and the
+    operators' states after the first ``N - max(delays)`` inputs (the rows every delay uses),
+    from which a later stretch of the record can be continued."""
+    n, m = us.size, r.size
     nd = d_arr.size
     dmax = int(d_arr.max())
     common = n - dmax  # rows every delay uses
@@ -704,6 +719,7 @@ def pi_gram(
             gram += zc.T @ zc
             zty += zc.T @ np.stack([ys[a + d:b + d] for d in d_arr], axis=1)
     # the last dmax rows belong to the smaller delays only (u[k] with y[k + d], k + d < N)
+    at_common = z.copy()
     zt = play_outputs(us[common:], r, z) if dmax else np.empty((0, m))
     out_g = np.empty((nd, m, m))
     out_b = np.empty((nd, m))
@@ -713,7 +729,10 @@ def pi_gram(
         out_g[i] = gram + extra.T @ extra
         out_s[i] = zsum + extra.sum(axis=0)
         out_b[i] = zty[:, i] + extra.T @ ys[common + d: n]
-    ysum = np.array([ys[d:].sum() for d in d_arr])
-    yty = np.array([ys[d:] @ ys[d:] for d in d_arr])
+    # sums over y[d:]: the whole record's, less its first d samples'
+    head = ys[:dmax]
+    ysum = ys.sum() - np.array([head[:d].sum() for d in d_arr])
+    yty = ys @ ys - np.array([head[:d] @ head[:d] for d in d_arr])
     return GramStats(delays=d_arr, n_samples=n - d_arr, gram=out_g, zty=out_b, zsum=out_s,
-                     ysum=ysum, yty=yty)
+                     ysum=ysum, yty=yty), at_common
+
