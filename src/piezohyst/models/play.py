@@ -462,17 +462,29 @@ def _play_outputs_into(
 
 @njit
 def play_outputs(u: FloatArray, r: FloatArray, z: FloatArray) -> FloatArray:  # pragma: no cover
-    """All operator outputs ``H_ri[u](k)`` as an (N, n) matrix (the regressors of a P-I fit).
+    """All operator outputs ``H_ri[u](k)`` as an (N, n) matrix (the regressors of a P-I fit);
+    ``z`` (the initial states) is left at the final states.
 
     Dense on purpose: every element of the matrix is written whatever the input, and writing
     it is the cost (``make bench`` compares it with merely filling a matrix of that size), so
-    the event-driven bookkeeping would save nothing here.
+    the event-driven bookkeeping would save nothing here. Each row is eq. (1) applied to the
+    row before it, so the states live in the matrix itself and nothing is copied.
     """
-    out = np.empty((u.shape[0], r.shape[0]))
-    for k in range(u.shape[0]):
-        play_step(u[k], r, z)
-        for i in range(r.shape[0]):
-            out[k, i] = z[i]
+    n, m = u.shape[0], r.shape[0]
+    out = np.empty((n, m))
+    if n == 0:
+        return out
+    x = u[0]
+    for i in range(m):
+        out[0, i] = min(max(z[i], x - r[i]), x + r[i])
+    for k in range(1, n):
+        x = u[k]
+        prev = out[k - 1]
+        row = out[k]
+        for i in range(m):
+            row[i] = min(max(prev[i], x - r[i]), x + r[i])
+    for i in range(m):
+        z[i] = out[n - 1, i]
     return out
 
 
