@@ -334,8 +334,8 @@ class RateCompensator(Compensator):
         if args is not None:
             u = _rate_pi_inverse_step(float(x_d), *args)
             if math.isnan(u):
-                known = sum(float(c) * float(a) * s for c, a, s in zip(args[6], args[5], self._s))
-                raise ValueError(f"u_k must be finite, got {x_d - known!r}")
+                lag_part = sum(float(c) * float(a) * s for c, a, s in zip(args[6], args[5], self._s))
+                raise ValueError(f"u_k must be finite, got {x_d - lag_part!r}")
             return float(u)
         m = self.model
         a, c = m._a, m.lag_weights
