@@ -151,3 +151,19 @@ def test_rate_compensator_kernel_equals_python_recursion(input_tau, n_lags, seed
     np.testing.assert_array_equal(fast_cmd, slow_cmd)
     np.testing.assert_array_equal(fast_steps, slow_steps)
     np.testing.assert_array_equal(fast_cmd, fast_steps)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 1000), scale=st.floats(0.1, 300.0), start=st.floats(-20.0, 120.0))
+def test_guard_table_equals_the_per_sample_guard(seed, scale, start):
+    from piezohyst.plant import CommandLimits, GuardedPlant
+
+    g = np.random.default_rng(seed)
+    x = start + np.cumsum(g.normal(0.0, scale / 50, 2000)) + g.choice([0.0, scale], 2000, p=[0.97, 0.03])
+    lim = CommandLimits.for_range((0.0, 100.0))
+    a = GuardedPlant(ph.VirtualRig(seed=0), lim, last=float(np.clip(start, 0.0, 100.0)))
+    b = GuardedPlant(ph.VirtualRig(seed=0), lim, last=float(np.clip(start, 0.0, 100.0)))
+    table = a.guard_table(x)
+    steps = np.array([b._guard(v) for v in x])
+    np.testing.assert_array_equal(table, steps)
+    assert a.counts() == b.counts() and a.last == b.last and a.last_saturation == b.last_saturation
