@@ -241,3 +241,21 @@ def test_pso_reports_its_iterations_into_an_open_display():
     # and with no display open it reports nowhere and returns the same result
     again = ph.pso_minimize(lambda X: (X**2).sum(axis=1), [(-1, 1)] * 2, seed=0, max_iter=15)
     assert again.fun == res.fun and again.nfev == res.nfev
+
+
+def test_envelope_keeps_each_columns_extremes_in_time_order():
+    from piezohyst.plots import _envelope
+
+    g = np.random.default_rng(1)
+    t = np.arange(40_003) * 1e-4
+    y = np.sin(t) + g.normal(0.0, 0.1, t.size)
+    te, ye = _envelope(t, y, columns=500)
+    assert te.size < 2 * 500 + 10 and np.all(np.diff(te) > 0)
+    assert te[0] == t[0] and te[-1] == t[-1]
+    per = t.size // 500
+    for c in (0, 137, 499):
+        sl = slice(c * per, (c + 1) * per)
+        inside = (te >= t[sl][0]) & (te <= t[sl][-1])
+        assert ye[inside].max() == y[sl].max() and ye[inside].min() == y[sl].min()
+    short_t, short_y = _envelope(t[:1000], y[:1000], columns=500)
+    assert short_y.size == 1000

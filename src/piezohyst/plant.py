@@ -34,6 +34,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from ._numba import njit
 from ._validation import FloatArray, as_scalar, as_signal
 from .data import Dataset
 
@@ -212,6 +213,31 @@ class CommandLimits:
                 "max_step_fraction": self.max_step / self.span, "u_rest_V": self.rest}
 
 
+@njit
+def _guard_table(x: FloatArray, low: float, high: float, max_step: float, tol: float,
+                 state: FloatArray) -> FloatArray:  # pragma: no cover - compiled
+    """:meth:`GuardedPlant._guard` over a table, operation for operation; ``state`` is
+    ``[last, clipped, slew_limited, largest_step, last_saturation, sent]``, updated."""
+    out = np.empty(x.shape[0])
+    last = state[0]
+    for k in range(x.shape[0]):
+        xk = x[k]
+        sat = 1.0 if xk > high else (-1.0 if xk < low else 0.0)
+        v = min(max(xk, low), high)
+        if abs(v - xk) > tol:
+            state[1] += 1.0
+        if abs(v - last) > max_step:
+            v = min(max(v, last - max_step), last + max_step)
+            state[2] += 1.0
+        state[4] = sat
+        state[3] = max(state[3], abs(v - last))
+        last = v
+        out[k] = v
+    state[0] = last
+    state[5] += x.shape[0]
+    return out
+
+
 class GuardedPlant:
     """A plant (either protocol) behind the safe layer (module docstring).
 
@@ -278,10 +304,14 @@ class GuardedPlant:
 
     def guard_table(self, u: Any) -> FloatArray:
         """The table the guard would send for ``u`` (and its counts updated as if sent)."""
-        x = as_signal("u", u)
-        out = np.empty(x.size)
-        for k in range(x.size):
-            out[k] = self._guard(x[k])
+        x = as_signal("u", u)  # finite, so _guard would raise for none of it: compiled, the same
+        lim = self.limits
+        state = np.array([self.last, self.clipped, self.slew_limited, self.largest_step, self.last_saturation,
+                          self.sent], dtype=np.float64)
+        out = _guard_table(x, lim.low, lim.high, lim.max_step, self._tol, state)
+        self.last, self.largest_step = float(state[0]), float(state[3])
+        self.clipped, self.slew_limited = int(state[1]), int(state[2])
+        self.last_saturation, self.sent = int(state[4]), int(state[5])
         return out
 
     def step(self, u: float) -> float:

@@ -60,6 +60,32 @@ def figure_result(fig: Any) -> Any:
     return fig
 
 
+#: Columns a time series is reduced to before drawing (:func:`_envelope`): more than a saved
+#: figure's time axis has pixels (10 in at 120 dpi is 1200 pixels for the whole figure).
+ENVELOPE_COLUMNS = 2000
+
+
+def _envelope(t: Any, y: Any, columns: int = ENVELOPE_COLUMNS) -> tuple[Any, Any]:
+    """``(t, y)`` reduced to what a line over ``columns`` pixel columns can show: per column of
+    equal time, the samples of its minimum and its maximum, in time order (the first and last
+    samples kept). A line through these covers the same pixels as the whole series, its extremes
+    exact, so the figure looks the same and is drawn from a few thousand points instead of tens
+    of thousands. ``t`` must be increasing; shorter series are returned as they are."""
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = y.size
+    per = n // columns
+    if per < 4 or t.size != n:
+        return t, y
+    m = columns * per
+    blocks = y[:m].reshape(columns, per)
+    base = np.arange(columns) * per
+    i_min = base + np.argmin(blocks, axis=1)
+    i_max = base + np.argmax(blocks, axis=1)
+    keep = np.unique(np.concatenate([[0], i_min, i_max, np.arange(m, n), [n - 1]]))
+    return t[keep], y[keep]
+
+
 def _unit_scale(values: Any) -> tuple[float, str]:
     """Scale and unit for displacement errors: nm below 1 µm, else µm."""
     peak = float(np.max(np.abs(values))) if np.size(values) else 0.0
@@ -224,8 +250,8 @@ def plot_fit(u: Any, y: Any, y_model: Any, *, t: Any = None, dt: float | None = 
     a_loop.set_xlabel("input voltage u (V)")
     a_loop.set_ylabel("displacement y (µm)")
     a_loop.legend(fontsize=8)
-    arts += a_time.plot(ts, ys, lw=1.4, color="0.6", label=data_label)
-    arts += a_time.plot(ts, ms, lw=0.9, ls="--", color="C3", label=model_name)
+    arts += a_time.plot(*_envelope(ts, ys), lw=1.4, color="0.6", label=data_label)
+    arts += a_time.plot(*_envelope(ts, ms), lw=0.9, ls="--", color="C3", label=model_name)
     a_time.set_ylabel("displacement (µm)")
     a_time.legend(fontsize=8, loc="upper right")
     resid = ys - ms
@@ -236,7 +262,7 @@ def plot_fit(u: Any, y: Any, y_model: Any, *, t: Any = None, dt: float | None = 
         r = resid[sl]
         if r.size:
             rmse = float(np.sqrt(np.mean(r**2)))
-            arts += a_res.plot(ts[sl], r * scale, lw=0.7, color=f"C{i}",
+            arts += a_res.plot(*_envelope(ts[sl], r * scale), lw=0.7, color=f"C{i}",
                                label=f"{name}RMSE {rmse * scale:.3g} {unit}")
     a_res.axhline(0.0, color="0.5", lw=0.6)
     a_res.set_ylabel(f"residual y - model ({unit})")
@@ -312,8 +338,8 @@ def plot_tracking(t: Any, reference: Any, output: Any, *, command: Any = None, s
             a.axvspan(tt[lo_k], tt[hi_k - 1], color="C2", alpha=0.08, lw=0)
 
     if ax_t is not None:
-        arts += ax_t.plot(tt, r, lw=1.6, color="0.6", label="desired")
-        arts += ax_t.plot(tt, y, lw=0.9, color="C0", label="measured")
+        arts += ax_t.plot(*_envelope(tt, r), lw=1.6, color="0.6", label="desired")
+        arts += ax_t.plot(*_envelope(tt, y), lw=0.9, color="C0", label="measured")
         shade(ax_t)
         ax_t.set_ylabel("displacement (µm)")
         ax_t.legend(loc="upper right", fontsize=8)
@@ -321,7 +347,7 @@ def plot_tracking(t: Any, reference: Any, output: Any, *, command: Any = None, s
     if ax_e is not None:
         es = e[lo_k:hi_k] if hi_k > lo_k else e
         scale, unit = _unit_scale(es)
-        arts += ax_e.plot(tt, e * scale, lw=0.8, color="C3")
+        arts += ax_e.plot(*_envelope(tt, e * scale), lw=0.8, color="C3")
         shade(ax_e)
         ax_e.axhline(0.0, color="0.5", lw=0.6)
         peak = float(np.max(np.abs(es))) * scale if es.size else 0.0
@@ -334,7 +360,7 @@ def plot_tracking(t: Any, reference: Any, output: Any, *, command: Any = None, s
             note += f"; {outside} samples before it off scale (start-up)"
         ax_e.text(0.01, 0.03, note, transform=ax_e.transAxes, fontsize=7, color="0.3")
     if ax_u is not None and u is not None:
-        arts += ax_u.plot(tt, u, lw=0.8, color="C4")
+        arts += ax_u.plot(*_envelope(tt, u), lw=0.8, color="C4")
         shade(ax_u)
         ax_u.set_ylabel("command u (V)")
         if u_range is not None:

@@ -389,11 +389,24 @@ def track(
     watch = LoopWatch(r, u_range=getattr(plant, "u_range", None), feedback_on=feedback is not None,
                       limit=limit, dt=dt, describe=lambda: _describe(feedforward, feedback, feedback_at))
     sat = 0
+    at_ref = feedback_at == "reference"
+    compiled = False
+    if reset:  # the whole loop in one compiled call when every part has a kernel (compiled_loop)
+        from .compiled_loop import has_kernels, run_compiled
+
+        if has_kernels(plant, feedforward, feedback):
+            done = run_compiled(plant, r, feedforward, feedback, at_ref=at_ref, watch=watch)
+            compiled = done is not None
+            if compiled:
+                y, u = done  # type: ignore[misc]
+            else:  # it gave up where a check stops the run: the Python loop, from the start, says why
+                for part in (feedback, feedforward, plant):
+                    if part is not None:
+                        part.reset()
     ff_step = feedforward.step if feedforward is not None else None
     fb_step = feedback.step if feedback is not None else None
-    at_ref = feedback_at == "reference"
     pstep = plant.step
-    for k in range(n):
+    for k in range(0 if not compiled else n, n):
         rk = r[k]
         fb = fb_step(rk - y_prev, sat) if fb_step is not None else 0.0
         if ff_step is None:

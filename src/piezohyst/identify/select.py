@@ -42,6 +42,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
 from .linear import DEFAULT_MARGIN, Structure, fit_prepared, fit_structure, mean_slope, prepare
@@ -215,6 +216,7 @@ def _delay_search(sc: _Scorer, base: Structure, lo: int, hi: int) -> _Candidate:
             cands[d] = sc.linear(replace(base, delay=d))
 
 
+@with_single_threaded_blas  # hundreds of small products: more threads only contend (piezohyst._blas)
 def fit_model(
     u: Any, y: Any = None, dt: float | None = None, kind: str = "auto", *,
     validation: Sequence[Any] | None = None, holdout: float | int = HOLDOUT, delay: int | str = "auto",

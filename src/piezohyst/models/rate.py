@@ -40,6 +40,8 @@ import numpy as np
 from .._numba import njit
 from .._validation import FloatArray, as_scalar, as_signal, frozen
 from .base import Compensator, check_dt, kind_of, nested_from_dict, nested_to_dict, register_kind
+from .pi import PIStepper
+from .play import pi_step
 
 
 @njit
@@ -49,6 +51,36 @@ def _lag_kernel(x: FloatArray, a: float) -> FloatArray:  # pragma: no cover - co
     for k in range(x.shape[0]):
         s = (1.0 - a) * x[k] + a * s
         out[k] = s
+    return out
+
+
+@njit
+def _rate_pi_inverse_step(x_d: float, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float,
+                          a: FloatArray, c: FloatArray, s: FloatArray, b: float, v_prev: FloatArray) -> float:  # pragma: no cover
+    """One sample of :class:`RateCompensator` with a P-I static part (module docstring): solve
+    ``S_kappa[v] = x_d - sum_i c_i a_i s_i`` with the inverse P-I model (eqs. 12-15, ``pi_step``),
+    update the lags, invert the input lag. NaN, with no state changed, when the inverse's input
+    is not finite (the caller raises as the P-I stepper would)."""
+    known = 0.0
+    for i in range(a.shape[0]):
+        known += c[i] * a[i] * s[i]
+    x = x_d - known
+    if not math.isfinite(x):
+        return math.nan
+    v = pi_step(x, r, w, z, in_off, out_off)
+    for i in range(a.shape[0]):
+        s[i] = (1.0 - a[i]) * v + a[i] * s[i]
+    u = v if b == 0.0 else (v - b * v_prev[0]) / (1.0 - b)  # exact inverse of the input lag
+    v_prev[0] = v
+    return u
+
+
+@njit
+def _rate_pi_inverse_run(x_d: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float,
+                         a: FloatArray, c: FloatArray, s: FloatArray, b: float, v_prev: FloatArray) -> FloatArray:  # pragma: no cover
+    out = np.empty(x_d.shape[0])
+    for k in range(x_d.shape[0]):
+        out[k] = _rate_pi_inverse_step(x_d[k], r, w, z, in_off, out_off, a, c, s, b, v_prev)
     return out
 
 
@@ -281,9 +313,30 @@ class RateCompensator(Compensator):
     def _reset(self) -> None:
         self._inverse.reset()
         self._s = np.zeros(self.model.taus.size)
-        self._v = 0.0
+        self._v_prev = np.zeros(1)
+
+    @property
+    def _v(self) -> float:
+        """The input-lag state ``v(k-1)``."""
+        return float(self._v_prev[0])
+
+    def _pi_kernel_args(self) -> tuple[Any, ...] | None:
+        """The arguments of the compiled recursion after ``x_d``, when the static part's inverse is
+        a P-I stepper (one compiled call per sample instead of the Python loop below)."""
+        inv = self._inverse
+        if type(inv) is not PIStepper:
+            return None
+        m = self.model
+        return (inv._r, inv._w, inv._z, inv._in, inv._out, m._a, m.lag_weights, self._s, self._b, self._v_prev)
 
     def _step(self, x_d: float) -> float:
+        args = self._pi_kernel_args()
+        if args is not None:
+            u = _rate_pi_inverse_step(float(x_d), *args)
+            if math.isnan(u):
+                lag_part = sum(float(c) * float(a) * s for c, a, s in zip(args[6], args[5], self._s))
+                raise ValueError(f"u_k must be finite, got {x_d - lag_part!r}")
+            return float(u)
         m = self.model
         a, c = m._a, m.lag_weights
         known = 0.0
@@ -294,8 +347,18 @@ class RateCompensator(Compensator):
             self._s[i] = (1.0 - a[i]) * v + a[i] * self._s[i]
         b = self._b
         u = v if b == 0.0 else (v - b * self._v) / (1.0 - b)  # exact inverse of the input lag
-        self._v = v
+        self._v_prev[0] = v
         return u
+
+    def _command(self, x_d: FloatArray) -> FloatArray:
+        args = self._pi_kernel_args()
+        if args is None:
+            return super()._command(x_d)
+        out = _rate_pi_inverse_run(np.ascontiguousarray(x_d, dtype=np.float64), *args)
+        if np.isnan(out).any():  # the sample where the stepper raises, from a fresh start
+            self.reset()
+            return super()._command(x_d)
+        return out
 
     def inverse_parameters(self) -> dict[str, Any]:
         """The recursion of the module docstring: the static part's inverse with the lags'

@@ -1,0 +1,210 @@
+"""The closed loop of :func:`~piezohyst.control.tracking.track` compiled, for the parts that have kernels.
+
+``track`` drives any Plant sample by sample in Python: one call into the feedforward, the PID
+and the plant per sample, which costs microseconds each. When every part of the loop is one
+whose arithmetic is already a compiled kernel, the whole loop runs in one compiled call instead:
+
+* the plant is a :class:`~piezohyst.rig.VirtualRig` (its ``_rig_step``; the sensor noise drawn
+  from the rig's own generator in one block, the same numbers ``step`` draws one at a time);
+* the feedforward is none, an :class:`~piezohyst.models.pi.InversePIFeedforward` (``pi_step`` on
+  the inverse model, eqs. 12-15) or a :class:`~piezohyst.models.bouc_wen_inverse.BoucWenFeedforward`
+  (``bw_ff_step``, eq. 10), with the output limits of
+  :class:`~piezohyst.models.base.Compensator`;
+* the feedback is none or a :class:`~piezohyst.control.pid.PID`.
+
+The loop is the one ``track`` documents, operation for operation, with the checks of
+:class:`~piezohyst.control.tracking.LoopWatch`. It only ever runs a loop that completes: at the
+first sample where anything unusual happens (a check that would stop the run, a non-finite
+value) it gives up, and ``track`` runs the generic Python loop from the start, which raises the
+error it always raised. So the compiled path changes nothing a caller can see but the time:
+the states of the plant, the feedforward and the PID after the run are those the Python loop
+leaves (``tests/test_tracking_compiled.py`` checks it sample for sample).
+
+Any other plant, feedforward or feedback (a user's own hardware adapter, another model kind's
+compensator, a subclass that may override a step) takes the generic loop.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .._numba import njit
+from .._validation import FloatArray
+from ..models.bouc_wen_inverse import BoucWenFeedforward, bw_ff_step
+from ..models.pi import InversePIFeedforward
+from ..models.play import pi_step
+from ..rig import VirtualRig, _rig_step
+from .pid import PID
+
+# feedforward kinds of the kernel
+_FF_NONE, _FF_PI, _FF_BW = 0, 1, 2
+#: what the kernel returns when the loop ran to its end (else: the sample where it gave up)
+COMPLETED = -1
+
+
+@njit
+def _closed_loop(r: FloatArray, y: FloatArray, u: FloatArray,
+                 # the rig (VirtualRig._rig_step's arguments) and its noise, one value per sample
+                 p: FloatArray, kv_a: FloatArray, kv_g: FloatArray, amp_a: float, st: FloatArray,
+                 line: FloatArray, consts: FloatArray, noise: FloatArray,
+                 # the feedforward: kind, arrays (P-I: thresholds, weights, state; Bouc-Wen: the
+                 # constants of eq. 10, unused, state [u_prev, h]), scalars (P-I: input and output
+                 # offsets; Bouc-Wen: offset), limits [u_lo, u_hi, max_slew] (inf: none) and
+                 # their state [has_last, u_last, limited]
+                 ff_kind: int, ff_a: FloatArray, ff_b: FloatArray, ff_state: FloatArray, ff_s: FloatArray,
+                 ff_lim: FloatArray, ff_lim_state: FloatArray,
+                 # the PID: on, gains [kp, ki, dt, a, b, u_min, u_max], state [integral, d, e_prev, first]
+                 fb_on: bool, pid_g: FloatArray, pid_state: FloatArray, at_ref: bool,
+                 # LoopWatch: [lo_u, hi_u, limit, span, settle, window, chatter], switches
+                 watch: FloatArray, watch_chatter: bool, watch_window: bool) -> int:  # pragma: no cover
+    """The loop of :func:`~piezohyst.control.tracking.track` (module docstring); the sample where
+    it gave up, or :data:`COMPLETED`."""
+    n = r.shape[0]
+    lo_u, hi_u, limit, span = watch[0], watch[1], watch[2], watch[3]
+    settle, w, chatter = int(watch[4]), int(watch[5]), int(watch[6])
+    n_lo = 0
+    n_hi = 0
+    sat = 0
+    y_prev = 0.0
+    for k in range(n):
+        rk = r[k]
+        # -- PID.step(rk - y_prev, sat)
+        fb = 0.0
+        if fb_on:
+            e = rk - y_prev
+            if not math.isfinite(e):
+                return k
+            if pid_state[3] != 0.0:
+                pid_state[2] = e
+                pid_state[3] = 0.0
+            pid_state[1] = pid_g[3] * pid_state[1] + pid_g[4] * (e - pid_state[2])
+            pid_state[2] = e
+            inc = pid_g[1] * pid_g[2] * e
+            u_try = pid_g[0] * e + pid_state[0] + inc + pid_state[1]
+            if inc > 0:
+                blocked = u_try > pid_g[6] or sat > 0
+            else:
+                blocked = u_try < pid_g[5] or sat < 0
+            if not blocked:
+                pid_state[0] += inc
+            fb = pid_g[0] * e + pid_state[0] + pid_state[1]
+            fb = min(max(fb, pid_g[5]), pid_g[6])
+        # -- the feedforward (Compensator.step: the inverse, then the output limits)
+        if ff_kind == _FF_NONE:
+            uk = fb
+        else:
+            x = rk + fb if at_ref else rk
+            if not math.isfinite(x):
+                return k
+            if ff_kind == _FF_PI:
+                raw = pi_step(x, ff_a, ff_b, ff_state, ff_s[0], ff_s[1])
+            else:
+                raw = bw_ff_step(ff_a[0], ff_a[1], ff_a[2], ff_a[3], ff_state, x * 1e-6 - ff_s[0])
+            v = raw
+            if ff_lim_state[0] != 0.0 and ff_lim[2] < math.inf:
+                v = min(max(v, ff_lim_state[1] - ff_lim[2]), ff_lim_state[1] + ff_lim[2])
+            v = min(max(v, ff_lim[0]), ff_lim[1])
+            if v != raw:
+                ff_lim_state[2] += 1.0
+            ff_lim_state[0] = 1.0
+            ff_lim_state[1] = v
+            uk = v if at_ref else v + fb
+        # -- LoopWatch.command
+        if not math.isfinite(uk):
+            return k
+        sat = 1 if uk > hi_u else (-1 if uk < lo_u else 0)
+        if watch_chatter:
+            if sat > 0:
+                n_hi += 1
+            elif sat < 0:
+                n_lo += 1
+            if k % chatter == chatter - 1:
+                if n_hi >= 10 and n_lo >= 10:
+                    return k
+                n_lo = 0
+                n_hi = 0
+        # -- the plant
+        yk = _rig_step(p, kv_a, kv_g, amp_a, st, line, consts, uk, noise[k])
+        u[k] = uk
+        y[k] = yk
+        # -- LoopWatch.output (the window's RMS with a hair of margin: at the threshold the Python
+        # loop, summing differently, decides)
+        if not math.isfinite(yk) or abs(yk - rk) > limit:
+            return k
+        if watch_window and k >= settle and k % w == w - 1:
+            acc = 0.0
+            for j in range(k - w + 1, k + 1):
+                d = y[j] - r[j]
+                acc += d * d
+            if math.sqrt(acc / w) > span * (1.0 - 1e-9):
+                return k
+        y_prev = yk
+    return COMPLETED
+
+
+def _ff_spec(ff: Any) -> tuple[int, FloatArray, FloatArray, FloatArray, FloatArray] | None:
+    """The kernel's view of a feedforward it knows (exact types: a subclass may override a step)."""
+    if ff is None:
+        e = np.zeros(1)
+        return _FF_NONE, e, e, e, e
+    if type(ff) is InversePIFeedforward:
+        s = ff._stepper
+        return _FF_PI, s._r, s._w, s._z, np.array([s._in, s._out])
+    if type(ff) is BoucWenFeedforward:
+        return _FF_BW, np.array(ff._consts, dtype=np.float64), np.zeros(1), ff._st, np.array([ff.model.offset])
+    return None
+
+
+def has_kernels(plant: Any, feedforward: Any, feedback: Any) -> bool:
+    """Whether the loop of these parts can run compiled (module docstring)."""
+    return (type(plant) is VirtualRig and (feedback is None or type(feedback) is PID)
+            and _ff_spec(feedforward) is not None)
+
+
+def run_compiled(plant: Any, r: FloatArray, feedforward: Any, feedback: Any, *, at_ref: bool,
+                 watch: Any) -> tuple[FloatArray, FloatArray] | None:
+    """Run the loop of ``track`` compiled (the parts must pass :func:`has_kernels`), from the state
+    ``track`` has just reset everything to; ``(y, u)``, or None when the run gave up: then the
+    plant, the feedforward and the feedback must be reset and the Python loop run."""
+    spec = _ff_spec(feedforward)
+    assert spec is not None
+    kind, ff_a, ff_b, ff_state, ff_s = spec
+    if feedforward is not None:
+        lo, hi = feedforward.u_range if feedforward.u_range is not None else (-math.inf, math.inf)
+        ff_lim = np.array([lo, hi, feedforward.max_slew if feedforward.max_slew is not None else math.inf])
+        last = feedforward._u_last
+        ff_lim_state = np.array([0.0 if last is None else 1.0, 0.0 if last is None else last,
+                                 float(feedforward.limited)])
+    else:
+        ff_lim = np.array([-math.inf, math.inf, math.inf])
+        ff_lim_state = np.zeros(3)
+    if feedback is not None:
+        pid_g = np.array([feedback.kp, feedback.ki, feedback.dt, feedback._a, feedback._b, feedback.u_min,
+                          feedback.u_max])
+        pid_state = np.array([feedback.integral, feedback._d, feedback._e_prev, 1.0 if feedback._first else 0.0])
+    else:
+        pid_g = np.zeros(7)
+        pid_state = np.zeros(4)
+    wv = np.array([watch.lo_u, watch.hi_u, watch.limit, watch.span, watch.settle, watch.WINDOW, watch.CHATTER],
+                  dtype=np.float64)
+    n = r.size
+    y = np.empty(n)
+    u = np.empty(n)
+    noise = plant._rng.standard_normal(n)
+    k = _closed_loop(r, y, u, plant._p, plant._kv_a, plant._kv_g, plant._amp_a, plant._st, plant._line,
+                     plant._consts, noise, kind, ff_a, ff_b, ff_state, ff_s, ff_lim, ff_lim_state,
+                     feedback is not None, pid_g, pid_state, at_ref, wv, bool(watch.watch_chatter),
+                     bool(watch.watch_window))
+    if k != COMPLETED:
+        return None
+    plant._n += n
+    if feedforward is not None:
+        feedforward._u_last = float(ff_lim_state[1]) if ff_lim_state[0] != 0.0 else None
+        feedforward.limited = int(ff_lim_state[2])
+    if feedback is not None:
+        feedback.integral, feedback._d, feedback._e_prev = (float(v) for v in pid_state[:3])
+        feedback._first = bool(pid_state[3] != 0.0)
+    return y, u
