@@ -423,6 +423,7 @@ def identify_record(path: str | os.PathLike[str], options: FitOptions | None = N
         :func:`~piezohyst.save_model` writes) carries the row and the options in
         ``extra["fleet"]``.
     """
+    from ._blas import single_threaded_blas
     from ._fileio import to_jsonable
     from .data import load_dataset
     from .modelio import model_to_dict
@@ -435,7 +436,8 @@ def identify_record(path: str | os.PathLike[str], options: FitOptions | None = N
     try:
         if single_thread:
             _one_numba_thread()
-        with warnings.catch_warnings(record=True) as caught:
+        # one record's products are small: a second BLAS thread only contends (piezohyst._blas)
+        with single_threaded_blas(), warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             ds = load_dataset(p, **opts.data_options())
             fit = fit_record(ds, opts)
@@ -574,7 +576,11 @@ class _Progress:
 #: (a quarter of a core, taken from the fits on a 2-core machine); with these, 0.4 (measured
 #: here, same method). The tick only detects blocked event loops and the system monitor feeds the
 #: dashboard (off by default); a runaway worker's memory is still checked twice a second.
+#: The workers also start without distributed's ``MALLOC_TRIM_THRESHOLD_=65536`` (which hands
+#: freed memory back to the system at once, so every record's arrays are page-faulted in anew):
+#: it cost a serial loop of 40 records 16-25 % more CPU here; the thread limits stay.
 LOCAL_CLUSTER_CONFIG = {
+    "distributed.nanny.pre-spawn-environ": {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1},
     "distributed.admin.tick.interval": "1s",
     "distributed.admin.system-monitor.interval": "2s",
     "distributed.worker.memory.monitor-interval": "500ms",
