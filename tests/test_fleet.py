@@ -169,7 +169,8 @@ def test_cli_on_a_dask_scheduler_and_worker_started_here(batch, serial, tmp_path
     try:
         with open(tmp_path / "dask.log", "wb") as log:  # the children keep their own copy of it
             procs.append(subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1",
-                                           "--port", str(port), "--no-dashboard", "--idle-timeout", "300"],
+                                           "--port", str(port), "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
+                                           "--idle-timeout", "300"],
                                           env=env, stdout=log, stderr=subprocess.STDOUT))
             procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--host", "127.0.0.1",
                                            "--nthreads", "1", "--nworkers", "1", "--no-dashboard",

@@ -608,6 +608,10 @@ def local_cluster(workers: int | None = None, *, dashboard_address: str | None =
         cluster = distributed.LocalCluster(
             n_workers=int(n), threads_per_worker=1, processes=True, host="127.0.0.1",
             dashboard_address=dashboard_address, silence_logs=logging.ERROR,
+            # without a dashboard the scheduler still serves HTTP (health, metrics), on 8787 by
+            # default: on a shared machine that port is often taken, and distributed then warns
+            # and moves; any free loopback port says the same without the warning
+            scheduler_kwargs=None if dashboard_address is not None else {"dashboard_address": "127.0.0.1:0"},
             env={"NUMBA_NUM_THREADS": "1"})
     try:
         return distributed.Client(cluster)
