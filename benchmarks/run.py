@@ -421,8 +421,8 @@ def bw_simulate(b: Bench) -> None:
           ours_s=t["ours"], baseline_s=base, baseline_measured_s=t["ivp"], max_diff_m=diff)
 
 
-@bench("pso-overhead")
-def pso_overhead(b: Bench) -> None:
+def _pso_overhead_times(b: Bench) -> dict[str, float] | None:
+    """Best times of 300 iterations of ours and of pyswarms (None: pyswarms is not installed)."""
     import logging
 
     import piezohyst as ph
@@ -432,7 +432,7 @@ def pso_overhead(b: Bench) -> None:
     except ImportError:
         b.skip("pso-overhead", "pso_minimize overhead per iteration", "<= 0.5x its time",
                "pyswarms not installed (pip install piezohyst[bench])")
-        return
+        return None
     logging.getLogger("pyswarms").setLevel(logging.ERROR)
     iters = 300
     lb, ub = np.full(7, -5.0), np.full(7, 5.0)
@@ -445,8 +445,33 @@ def pso_overhead(b: Bench) -> None:
                                       options={"c1": 1.49618, "c2": 1.49618, "w": 0.7298})
         opt.optimize(f, iters=iters, verbose=False)
 
-    t = paired({"ours": lambda: ph.pso_minimize(f, [(-5.0, 5.0)] * 7, n_particles=50, max_iter=iters, seed=0),
-                "pyswarms": theirs}, rounds=4, repeat=2)
+    return paired({"ours": lambda: ph.pso_minimize(f, [(-5.0, 5.0)] * 7, n_particles=50, max_iter=iters, seed=0),
+                   "pyswarms": theirs}, rounds=4, repeat=2)
+
+
+@bench("pso-overhead")
+def pso_overhead(b: Bench) -> None:
+    import logging
+
+    # pyswarms' reporter (made as its modules load, and by each optimiser) hangs a file handler on
+    # the root logger, writing report.log into the working directory and, at level INFO, every
+    # later row's library logs into it: import and run it in a scratch folder, and take the
+    # handlers and the level off again
+    root = logging.getLogger()
+    level, handlers, here = root.level, list(root.handlers), os.getcwd()
+    with tempfile.TemporaryDirectory(prefix="piezohyst-bench-pyswarms-") as scratch:
+        os.chdir(scratch)
+        try:
+            t = _pso_overhead_times(b)
+        finally:
+            os.chdir(here)
+            for h in [h for h in root.handlers if h not in handlers]:
+                root.removeHandler(h)
+                h.close()
+            root.setLevel(level)
+    if t is None:
+        return
+    iters = 300
     ours, base = t["ours"] / iters, t["pyswarms"] / iters
     ratio = ours / base
     b.row("pso-overhead", "pso_minimize overhead per iteration, 50 particles, 7-D, trivial objective",
