@@ -421,6 +421,10 @@ def bw_simulate(b: Bench) -> None:
           ours_s=t["ours"], baseline_s=base, baseline_measured_s=t["ivp"], max_diff_m=diff)
 
 
+#: Iterations of each PSO run in the pso-overhead row (the times are divided by it).
+PSO_ITERS = 300
+
+
 def _pso_overhead_times(b: Bench) -> dict[str, float] | None:
     """Best times of 300 iterations of ours and of pyswarms (None: pyswarms is not installed)."""
     import logging
@@ -434,7 +438,7 @@ def _pso_overhead_times(b: Bench) -> dict[str, float] | None:
                "pyswarms not installed (pip install piezohyst[bench])")
         return None
     logging.getLogger("pyswarms").setLevel(logging.ERROR)
-    iters = 300
+    iters = PSO_ITERS
     lb, ub = np.full(7, -5.0), np.full(7, 5.0)
 
     def f(x: np.ndarray) -> np.ndarray:
@@ -471,8 +475,7 @@ def pso_overhead(b: Bench) -> None:
             root.setLevel(level)
     if t is None:
         return
-    iters = 300
-    ours, base = t["ours"] / iters, t["pyswarms"] / iters
+    ours, base = t["ours"] / PSO_ITERS, t["pyswarms"] / PSO_ITERS
     ratio = ours / base
     b.row("pso-overhead", "pso_minimize overhead per iteration, 50 particles, 7-D, trivial objective",
           ours=fmt_t(ours), baseline=f"pyswarms GlobalBestPSO, same settings, quiet: {fmt_t(base)}", ratio=ratio,
