@@ -3,6 +3,7 @@ process, on a ``dask scheduler`` + ``dask worker`` pair started here (loopback o
 end), and serially; the same figures every way, the corrupt record a row, the odd actuator flagged."""
 
 import json
+import math
 import os
 import socket
 import subprocess
@@ -12,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import piezohyst as ph
 from piezohyst.cli import main
@@ -96,7 +99,12 @@ def test_serial_batch_equals_fit_pi_and_flags_the_odd_actuator(batch, serial):
         assert row["loop_width_um"] == lf.width and row["gain_um_per_v"] == np.ptp(ds.y) / np.ptp(ds.u)
 
 
-def test_local_cluster_two_workers_equals_serial(batch, serial, tmp_path):
+def test_local_cluster_two_workers_equals_serial(batch, serial, tmp_path, monkeypatch):
+    from distributed import get_task_stream
+
+    # every record "quick": the first four go one per task, the rest in the largest groups that
+    # still leave four tasks per worker (ceil(37 / 8) = 5 records each: 8 tasks)
+    monkeypatch.setattr(ph.fleet, "TASK_SECONDS", 1e9)
     client = local_cluster(2)
     try:
         env = client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"), __import__("numba").config.NUMBA_NUM_THREADS))
@@ -105,7 +113,11 @@ def test_local_cluster_two_workers_equals_serial(batch, serial, tmp_path):
         ticks = client.run(lambda: __import__("dask").config.get("distributed.admin.tick.interval"))
         assert set(ticks.values()) == {ph.fleet.LOCAL_CLUSTER_CONFIG["distributed.admin.tick.interval"]}
         seen = []
-        df = identify_many(batch["dir"], client=client, out=tmp_path, progress=lambda d, n, row: seen.append((d, n)))
+        with get_task_stream(client) as stream:
+            df = identify_many(batch["dir"], client=client, out=tmp_path,
+                               progress=lambda d, n, row: seen.append((d, n)))
+        tasks = {t["key"] for t in stream.data}
+        assert len(tasks) == 4 + 8 == len({t for t in tasks if "piezohyst-fleet-" in str(t)}), sorted(tasks)
         assert client.status == "running"  # a client we passed is left open
         pids = list(client.run(os.getpid).values())
     finally:
@@ -363,3 +375,14 @@ def test_dask_is_optional(tmp_path, monkeypatch, capsys):
     assert "piezohyst[fleet]" in capsys.readouterr().err
     assert isinstance(MissingExtraError("x"), ImportError)
     assert identify_many(f, client="serial")["status"].tolist() == ["ok"]  # serial needs no Dask
+
+
+@given(record_seconds=st.floats(0.0, 100.0), records=st.integers(0, 5000), workers=st.integers(1, 64))
+def test_group_size_carries_enough_work_and_keeps_every_worker_busy(record_seconds, records, workers):
+    size = ph.fleet.group_size(record_seconds, records, workers)
+    assert size >= 1
+    if size > 1:  # grouped only when a record is quicker than a task should be, and never into too few tasks
+        assert (size - 1) * record_seconds < ph.fleet.TASK_SECONDS
+        assert math.ceil(records / size) >= min(records, ph.fleet.TASKS_PER_WORKER * workers) / 2
+    if record_seconds >= ph.fleet.TASK_SECONDS or records <= ph.fleet.TASKS_PER_WORKER * workers:
+        assert size == 1

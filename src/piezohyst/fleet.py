@@ -3,7 +3,9 @@
 A manufacturer or a lab characterises every actuator of a batch: hundreds to thousands of
 voltage/displacement records, each to be identified, filed and compared with its siblings. This
 module runs one task per record on a Dask cluster (a ``LocalCluster`` on this machine by
-default, or any scheduler you already run) and gathers one table.
+default, or any scheduler you already run) and gathers one table; records that take only
+milliseconds (P-I fits) go out in small groups, so that Dask's cost per task does not eat the
+speed-up.
 
 * :func:`identify_many` - every record identified (P-I by default), the models written to
   ``out/models/<record>.json`` and one row per record returned as a ``pandas.DataFrame`` (and
@@ -101,6 +103,7 @@ from __future__ import annotations
 import glob
 import hashlib
 import json
+import math
 import os
 import re
 import time
@@ -645,34 +648,110 @@ def _cluster_task(path: str, options: FitOptions, record: str) -> dict[str, Any]
     return identify_record(path, options, record=record, single_thread=True)
 
 
+def _cluster_group(paths: list[str], options: FitOptions, records: list[str]) -> list[dict[str, Any]]:
+    """What a worker runs for a group of quick records: :func:`identify_record` for each, in turn."""
+    return [identify_record(p, options, record=r, single_thread=True) for p, r in zip(paths, records)]
+
+
+#: Work a task should carry, in seconds. distributed spends about a millisecond of scheduler,
+#: worker and client time on every task (its documentation advises tasks of 100 ms or more);
+#: a P-I record of 20,000 samples takes about 20 ms, so one task per record spent a fifth of the
+#: cores on the bookkeeping (measured: 40 records on 2 local workers, 1.1-1.3x serial).
+TASK_SECONDS = 0.1
+#: Tasks per worker that a batch keeps at least, so that a slow worker or a slow record cannot
+#: leave the others idle at the end.
+TASKS_PER_WORKER = 4
+
+
+def group_size(record_seconds: float, records: int, workers: int) -> int:
+    """How many records one task carries: enough for :data:`TASK_SECONDS` of work, but never so
+    many that the ``records`` leave fewer than :data:`TASKS_PER_WORKER` tasks per worker.
+
+    >>> group_size(0.02, 36, 2), group_size(2.0, 36, 2), group_size(0.001, 10, 2)
+    (5, 1, 2)
+    """
+    if not record_seconds > 0.0:  # nothing measured (or a clock that did not move): one per task
+        return 1
+    most = max(1, math.ceil(records / (TASKS_PER_WORKER * max(workers, 1))))
+    if most * record_seconds < TASK_SECONDS:  # (also keeps the division below finite)
+        return most
+    return min(most, math.ceil(TASK_SECONDS / record_seconds))
+
+
+def _workers_of(client: Any) -> int:
+    try:
+        return max(1, sum(client.nthreads().values()))
+    except Exception:  # noqa: BLE001 - only a sizing hint
+        return 1
+
+
 def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
                    done: Callable[[str, dict[str, Any]], None]) -> None:
-    """One task per record, submitted in one ``client.map`` and gathered as they finish.
+    """One task per record, or per group of records when a record is quick; gathered as they finish.
 
-    One ``map`` call and results that come with their completion messages cost the client and
-    the scheduler about half the time per task of a ``submit`` and a ``result()`` per record
-    (measured: 40 empty tasks on 2 local workers, 0.11 s against 0.20 s), which matters when a
-    P-I fit takes a few milliseconds.
+    The first records (two per worker, at most) go out one per task; what the quickest of them
+    took (so a worker's first, cold task does not count) sizes the groups of the rest
+    (:func:`group_size`): a batch of Bouc-Wen fits (seconds each) stays one task per record; a
+    batch of P-I fits (milliseconds) goes out in groups, so that distributed's per-task cost
+    does not eat the speed-up. Each batch is one ``client.map`` with results that come with
+    their completion messages: about half the client's and the scheduler's time per task of a
+    ``submit`` and a ``result()`` per record (measured: 40 empty tasks on 2 local workers, 0.11 s
+    against 0.20 s).
     """
     from distributed import as_completed
 
     token = uuid.uuid4().hex[:8]
-    keys = [f"piezohyst-fleet-{token}-{i}-{name}" for i, (name, _) in enumerate(jobs)]
-    futures = client.map(_cluster_task, [str(path) for _, path in jobs], [opts] * len(jobs),
-                         [name for name, _ in jobs], pure=False, key=keys)
-    pending = {fut.key: (fut, name, path) for fut, (name, path) in zip(futures, jobs)}
+    workers = _workers_of(client)
+    n_probe = min(len(jobs), 2 * workers)
+    probe, rest = jobs[:n_probe], jobs[n_probe:]
+    keys = [f"piezohyst-fleet-{token}-{i}-{name}" for i, (name, _) in enumerate(probe)]
+    futures = client.map(_cluster_task, [str(path) for _, path in probe], [opts] * len(probe),
+                         [name for name, _ in probe], pure=False, key=keys)
+    #: future key -> (future, the records it carries)
+    pending: dict[str, tuple[Any, list[tuple[str, Path]]]] = {
+        fut.key: (fut, [job]) for fut, job in zip(futures, probe)}
+    seen: list[float] = []
+    queue = as_completed(futures, with_results=True, raise_errors=False)
+
+    def send_rest() -> None:
+        size = group_size(min(seen) if seen else 0.0, len(rest), workers)
+        groups = [rest[i:i + size] for i in range(0, len(rest), size)]
+        keys = [f"piezohyst-fleet-{token}-{n_probe + i * size}-{g[0][0]}-x{len(g)}" for i, g in enumerate(groups)]
+        if size == 1:
+            futs = client.map(_cluster_task, [str(g[0][1]) for g in groups], [opts] * len(groups),
+                              [g[0][0] for g in groups], pure=False, key=keys)
+        else:
+            futs = client.map(_cluster_group, [[str(p) for _, p in g] for g in groups], [opts] * len(groups),
+                              [[n for n, _ in g] for g in groups], pure=False, key=keys)
+        pending.update({fut.key: (fut, g) for fut, g in zip(futs, groups)})
+        queue.update(futs)
+        rest.clear()
+
+    probes_out = len(probe)
     try:
-        for fut, res in as_completed(futures, with_results=True, raise_errors=False):
-            _, name, path = pending.pop(fut.key)
-            if isinstance(res, BaseException) or not isinstance(res, dict):
-                row = _empty_row(name, str(path), opts)  # the worker died (KilledWorker), was cancelled, ...
-                row["error"] = f"the task failed on the cluster: {type(res).__name__}: {res}"
-                res = {"row": row, "document": None}
+        for fut, res in queue:
+            _, carried = pending.pop(fut.key)
+            if isinstance(res, list) and len(res) == len(carried):
+                results = res
+            else:  # one record's result, or the exception that a whole task ended with
+                results = [res] * len(carried)
+            for (name, path), one in zip(carried, results):
+                if isinstance(one, BaseException) or not isinstance(one, dict):
+                    row = _empty_row(name, str(path), opts)  # the worker died (KilledWorker), was cancelled, ...
+                    row["error"] = f"the task failed on the cluster: {type(one).__name__}: {one}"
+                    one = {"row": row, "document": None}
+                elif one["row"]["status"] == "ok":
+                    seen.append(float(one["row"]["elapsed_s"]))
+                done(name, one)
             fut.release()
-            done(name, res)
+            probes_out -= fut.key in keys
+            # the rest goes out once more records are back than there are workers (so at least
+            # one warm record, not only each worker's first), or when every probe is back
+            if rest and (len(seen) > workers or probes_out == 0):
+                send_rest()
     finally:
         if pending:  # interrupted: do not leave the scheduler running the rest
-            client.cancel([fut for fut, _, _ in pending.values()])
+            client.cancel([fut for fut, _ in pending.values()])
 
 
 def identify_many(
@@ -680,7 +759,7 @@ def identify_many(
     force: bool = False, workers: int | None = None, progress: bool | Callable[..., Any] = False,
     outlier_mads: float = OUTLIER_MADS, timeout: float = 30.0, **options: Any,
 ) -> Any:
-    """Identify every record of a batch, one Dask task per record; one row per record.
+    """Identify every record of a batch, one Dask task per record (quick records in small groups); one row per record.
 
     Parameters
     ----------

@@ -137,8 +137,8 @@ def register(sub: Any, add: Any) -> None:
     fsub = p.add_subparsers(dest="fleet_command", metavar="SUBCOMMAND")
     q = fsub.add_parser(
         "identify", formatter_class=argparse.RawDescriptionHelpFormatter,
-        help="identify every record (one Dask task each); write DIR/models/, DIR/summary.csv, histograms",
-        description="Identify every record of a batch, one Dask task per record, on a local cluster (default: one "
+        help="identify every record (one Dask task each, quick ones grouped); write DIR/models/, DIR/summary.csv, histograms",
+        description="Identify every record of a batch, one Dask task per record (quick records grouped), on a local cluster (default: one "
         "worker process per core) or an existing scheduler; write DIR/models/<record>.json, DIR/summary.csv "
         "(+ .parquet with pyarrow) and DIR/fleet_histograms.png; print the batch's distributions and its "
         "outliers. A record that fails is a row with its error. Records whose model file is already in DIR are "
