@@ -102,8 +102,8 @@ def test_serial_batch_equals_fit_pi_and_flags_the_odd_actuator(batch, serial):
 def test_local_cluster_two_workers_equals_serial(batch, serial, tmp_path, monkeypatch):
     from distributed import get_task_stream
 
-    # every record "quick": the first four go one per task, the rest in the largest groups that
-    # still leave four tasks per worker (ceil(37 / 8) = 5 records each: 8 tasks)
+    # every record "quick": the first four go one per task, the rest in groups of at most
+    # ceil(37 / 8) = 5 records (four tasks per worker), shrinking to single records at the end
     monkeypatch.setattr(ph.fleet, "TASK_SECONDS", 1e9)
     client = local_cluster(2)
     try:
@@ -117,7 +117,7 @@ def test_local_cluster_two_workers_equals_serial(batch, serial, tmp_path, monkey
             df = identify_many(batch["dir"], client=client, out=tmp_path,
                                progress=lambda d, n, row: seen.append((d, n)))
         tasks = {t["key"] for t in stream.data}
-        assert len(tasks) == 4 + 8 == len({t for t in tasks if "piezohyst-fleet-" in str(t)}), sorted(tasks)
+        assert len(tasks) == 4 + len(ph.fleet.group_sizes(N_ACTUATORS + 1 - 4, 5, 2)) == len({t for t in tasks if "piezohyst-fleet-" in str(t)}), sorted(tasks)
         assert client.status == "running"  # a client we passed is left open
         pids = list(client.run(os.getpid).values())
     finally:
@@ -386,3 +386,12 @@ def test_group_size_carries_enough_work_and_keeps_every_worker_busy(record_secon
         assert math.ceil(records / size) >= min(records, ph.fleet.TASKS_PER_WORKER * workers) / 2
     if record_seconds >= ph.fleet.TASK_SECONDS or records <= ph.fleet.TASKS_PER_WORKER * workers:
         assert size == 1
+
+
+@given(records=st.integers(0, 3000), size=st.integers(1, 200), workers=st.integers(1, 64))
+def test_group_sizes_cover_the_records_and_shrink(records, size, workers):
+    sizes = ph.fleet.group_sizes(records, size, workers)
+    assert sum(sizes) == records and all(1 <= k <= size for k in sizes)
+    assert sizes == sorted(sizes, reverse=True)
+    if records:
+        assert sizes[-1] == 1

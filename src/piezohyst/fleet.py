@@ -678,6 +678,23 @@ def group_size(record_seconds: float, records: int, workers: int) -> int:
     return min(most, math.ceil(TASK_SECONDS / record_seconds))
 
 
+def group_sizes(records: int, size: int, workers: int) -> list[int]:
+    """The sizes of the successive groups of ``records`` records, at most ``size`` each: each
+    takes a ``2 * workers``-th of the records still left (guided self-scheduling), so the groups
+    shrink towards single records at the end and no worker waits long for the last one.
+
+    >>> group_sizes(37, 5, 2)
+    [5, 5, 5, 5, 5, 3, 3, 2, 1, 1, 1, 1]
+    """
+    sizes = []
+    left = records
+    while left > 0:
+        k = max(1, min(size, math.ceil(left / (2 * max(workers, 1)))))
+        sizes.append(k)
+        left -= k
+    return sizes
+
+
 def _workers_of(client: Any) -> int:
     try:
         return max(1, sum(client.nthreads().values()))
@@ -691,7 +708,7 @@ def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
 
     The first records (two per worker, at most) go out one per task; what the quickest of them
     took (so a worker's first, cold task does not count) sizes the groups of the rest
-    (:func:`group_size`): a batch of Bouc-Wen fits (seconds each) stays one task per record; a
+    (:func:`group_size`, :func:`group_sizes`: shrinking towards single records at the end): a batch of Bouc-Wen fits (seconds each) stays one task per record; a
     batch of P-I fits (milliseconds) goes out in groups, so that distributed's per-task cost
     does not eat the speed-up. Each batch is one ``client.map`` with results that come with
     their completion messages: about half the client's and the scheduler's time per task of a
@@ -715,8 +732,11 @@ def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
 
     def send_rest() -> None:
         size = group_size(min(seen) if seen else 0.0, len(rest), workers)
-        groups = [rest[i:i + size] for i in range(0, len(rest), size)]
-        keys = [f"piezohyst-fleet-{token}-{n_probe + i * size}-{g[0][0]}-x{len(g)}" for i, g in enumerate(groups)]
+        groups, start = [], 0
+        for k in group_sizes(len(rest), size, workers):
+            groups.append(rest[start:start + k])
+            start += k
+        keys = [f"piezohyst-fleet-{token}-{i}-{g[0][0]}-x{len(g)}" for i, g in enumerate(groups, n_probe)]
         if size == 1:
             futs = client.map(_cluster_task, [str(g[0][1]) for g in groups], [opts] * len(groups),
                               [g[0][0] for g in groups], pure=False, key=keys)
