@@ -112,6 +112,8 @@ def test_local_cluster_two_workers_equals_serial(batch, serial, tmp_path, monkey
         assert all(w["nthreads"] == 1 for w in client.scheduler_info()["workers"].values())
         ticks = client.run(lambda: __import__("dask").config.get("distributed.admin.tick.interval"))
         assert set(ticks.values()) == {ph.fleet.LOCAL_CLUSTER_CONFIG["distributed.admin.tick.interval"]}
+        profiling = client.run(lambda: __import__("dask").config.get("distributed.worker.profile.enabled"))
+        assert set(profiling.values()) == {False}
         seen = []
         with get_task_stream(client) as stream:
             df = identify_many(batch["dir"], client=client, out=tmp_path,
