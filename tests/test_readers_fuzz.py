@@ -273,3 +273,24 @@ def test_damaged_files(workdir, which, cut, flips):
 
 
 _CACHE: dict[str, dict[str, bytes]] = {}
+
+
+_FIELD = st.one_of(
+    st.floats(allow_nan=False, allow_infinity=False, width=32).map(repr),
+    st.integers(-10**6, 10**6).map(str),
+    st.sampled_from(["1,5", "-,5", "2.", ".5", "1e-3", "1E+03", "nan", "inf", "-Infinity", "", "NA", "x", "1.2.3",
+                     '"3.5"', "1#2", "e5", "+", "5e", " 7 ", "\t8"]),
+)
+
+
+@given(fields=st.lists(_FIELD, min_size=1, max_size=6),
+       joiner=st.sampled_from(["\t", ";", ",", "|", " ", "  ", " ; ", ", ", "\t\t"]),
+       cand=st.sampled_from(__import__("piezohyst.data._text", fromlist=["CANDIDATES"]).CANDIDATES))
+def test_whole_line_classes_equal_field_by_field(fields, joiner, cand):
+    """The sniffer's shortcut for lines of numbers only gives every field the class that
+    splitting the line and classifying each field gives."""
+    from piezohyst.data._text import _classify, _cls, _split
+
+    line = joiner.join(fields)
+    delim, decimal = cand
+    assert _classify(line, delim, decimal) == tuple(_cls(f, decimal) for f in _split(line.split("#", 1)[0], delim))

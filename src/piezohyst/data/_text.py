@@ -57,6 +57,27 @@ def _cls(field_text: str, decimal: str) -> str:
     return "x"
 
 
+_NUM_BODY = {".": r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", ",": r"[+-]?(?:\d+,?\d*|,\d+)(?:[eE][+-]?\d+)?"}
+#: (delimiter, decimal) -> a whole line of numbers only: such a line's classes are all "n" without
+#: splitting it (most lines of a data file; the rest goes field by field through _cls)
+def _all_numbers(delim: str | None, decimal: str) -> re.Pattern[str]:
+    space = r"\s" if delim is None or not delim.isspace() else r"[^\S" + re.escape(delim) + "]"  # not the delimiter
+    sep = r"\s+" if delim is None else space + "*" + re.escape(delim) + space + "*"
+    num = _NUM_BODY[decimal]
+    return re.compile(space + "*" + num + "(?:" + sep + num + ")*" + space + "*")
+
+
+_ALL_NUMBERS = {(d, dec): _all_numbers(d, dec) for d, dec in CANDIDATES}
+
+
+def _classify(line: str, delim: str | None, decimal: str) -> tuple[str, ...]:
+    """The class of every field of a line (comments cut off), as ``_cls`` gives them."""
+    fast = _ALL_NUMBERS.get((delim, decimal))
+    if fast is not None and '"' not in line and "#" not in line and fast.fullmatch(line):
+        return ("n",) * (len(line.split()) if delim is None else line.count(delim) + 1)
+    return tuple(_cls(f, decimal) for f in _split(line.split("#", 1)[0], delim))
+
+
 def _split(line: str, delim: str | None) -> list[str]:
     if delim is None:
         return line.split()
@@ -144,7 +165,8 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     text = text.lstrip("\ufeff")
     if "\x00" in text:
         raise NotText("it contains NUL characters")
-    lines = _LINE_SPLIT.split(text)
+    # (str.split is 20x quicker than the pattern; the same lines when only "\n" ends them)
+    lines = text.split("\n") if "\r" not in text else _LINE_SPLIT.split(text)
     body = "".join(ln for ln in lines[:400] if not ln.lstrip().startswith("#"))[:4096]
     bad = sum(1 for ch in body if ord(ch) < 32 and ch not in "\t\f\v")
     if bad > 0.01 * max(1, len(body)):
@@ -186,7 +208,7 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     def classes(li: int, cand: tuple[str | None, str]) -> tuple[str, ...]:
         key = (li, cand[0], cand[1])
         if key not in cache:
-            cache[key] = tuple(_cls(f, cand[1]) for f in _split(lines[li].split("#", 1)[0], cand[0]))
+            cache[key] = _classify(lines[li], cand[0], cand[1])
         return cache[key]
 
     sample = content[:_SAMPLE]
@@ -271,11 +293,12 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
         index_dropped = True
     preamble = len(before) - (0 if names is None else 2 if units is not None else 1)
 
-    row_bytes = [len(lines[li].encode(encoding, errors="replace")) + 1 for li in content[start:]]
+    rows_text = "\n".join(lines[li] for li in content[start:])
+    row_bytes = (len(rows_text.encode(encoding, errors="replace")) + 1) / max(1, len(content) - start)
     offset = bom + len("\n".join(lines[:first_data]).encode(encoding, errors="replace")) + (1 if first_data else 0)
     return Layout(encoding=encoding, bom=bom, delimiter=delim, decimal=dec, skip=first_data, nfields=n,
                   names=names, header_line=header_line, units=units, offered=offered, preamble=preamble,
-                  index_dropped=index_dropped, bytes_per_row=max(2.0, float(np.mean(row_bytes))),
+                  index_dropped=index_dropped, bytes_per_row=max(2.0, float(row_bytes)),
                   data_offset=offset, trailing=trailing, saved_meta=saved_meta, header_mismatch=mismatch)
 
 
