@@ -795,6 +795,27 @@ def _gram_auto_into(
         k = kc
 
 
+@njit_fast({"reassoc", "contract", "nsz"})
+def _y_sums(y: FloatArray, delays: Any) -> tuple[FloatArray, FloatArray]:  # pragma: no cover
+    """``1'y[d:]`` and ``y[d:]'y[d:]`` for every delay: the whole record's sums less those of its
+    first ``d`` samples (compiled: numpy's dot goes to a threaded BLAS, whose spinning costs
+    this thread more than the sum itself on a busy machine)."""
+    s1 = s2 = 0.0
+    for k in range(y.shape[0]):
+        s1 += y[k]
+        s2 += y[k] * y[k]
+    nd = delays.shape[0]
+    ysum = np.empty(nd)
+    yty = np.empty(nd)
+    for t in range(nd):
+        h1 = h2 = 0.0
+        for k in range(delays[t]):
+            h1 += y[k]
+            h2 += y[k] * y[k]
+        ysum[t] = s1 - h1
+        yty[t] = s2 - h2
+    return ysum, yty
+
 
 @dataclass(frozen=True)
 class GramStats:
@@ -953,9 +974,7 @@ def _gram_stats(us: FloatArray, r: FloatArray, ys: FloatArray, d_arr: Any, z: Fl
         out_s[i] = zsum + extra.sum(axis=0)
         out_b[i] = zty[:, i] + extra.T @ ys[common + d: n]
     # sums over y[d:]: the whole record's, less its first d samples'
-    head = ys[:dmax]
-    ysum = ys.sum() - np.array([head[:d].sum() for d in d_arr])
-    yty = ys @ ys - np.array([head[:d] @ head[:d] for d in d_arr])
+    ysum, yty = _y_sums(ys, d_arr)
     return GramStats(delays=d_arr, n_samples=n - d_arr, gram=out_g, zty=out_b, zsum=out_s,
                      ysum=ysum, yty=yty), at_common
 
