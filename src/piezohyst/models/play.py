@@ -866,6 +866,20 @@ class GramStats:
         ata[n, n] = nr
         return ata, np.append(b, self.ysum[i]), float(self.yty[i]), nr
 
+    def normal_equations_all(self, *, offset: bool = True) -> tuple[FloatArray, FloatArray, FloatArray, Any]:
+        """:meth:`normal_equations` of every delay at once, stacked along a first axis."""
+        nr = np.asarray(self.n_samples)
+        yty = np.asarray(self.yty, dtype=np.float64)
+        if not offset:
+            return np.array(self.gram, dtype=np.float64), np.array(self.zty, dtype=np.float64), yty, nr
+        k, n = self.zty.shape
+        ata = np.empty((k, n + 1, n + 1))
+        ata[:, :n, :n] = self.gram
+        ata[:, :n, n] = ata[:, n, :n] = self.zsum
+        ata[:, n, n] = nr
+        aty = np.concatenate([self.zty, np.asarray(self.ysum)[:, None]], axis=1)
+        return ata, aty, yty, nr
+
 
 def pi_gram(
     u: Any, thresholds: Any, y: Any, *, delays: Any = (0,), initial_state: Any = None,
