@@ -111,18 +111,21 @@ def test_delay_search_scores_every_delay_as_one_fit_each():
     true = pv.pi_model()
     u = rich_excitation(5000)
     y = np.concatenate([[0.0, 0.0], true.simulate(u)[:-2]]) + np.random.default_rng(1).normal(0, 0.01, u.size)
-    fit = ph.fit_pi(u, y, n=12, u_max=100.0, delay="auto", max_auto_delay=5)
-    r = fit.model.thresholds
-    delays = np.arange(6, dtype=np.int64)
-    part, held = _split_gram(u, y, r, delays, int(round(0.7 * u.size)))
-    margin = fit.info["margin"]
-    for i, d in enumerate(delays):
-        x = _lsq_from_gram(part, i, r.size, margin, True)
-        coef = np.r_[np.diff(np.r_[0.0, x[:-1]]), x[-1]]
-        g, b, c, m = held.normal_equations(i)
-        want = np.sqrt(max(c - 2 * coef @ b + coef @ g @ coef, 0.0) / m)
-        assert fit.info["delay_holdout_rmse"][int(d)] == pytest.approx(want, rel=1e-7)
-    assert fit.delay == 2
+    for offset in (True, False):
+        fit = ph.fit_pi(u, y, n=12, u_max=100.0, delay="auto", max_auto_delay=5, fit_offset=offset)
+        r = fit.model.thresholds
+        delays = np.arange(6, dtype=np.int64)
+        part, held = _split_gram(u, y, r, delays, int(round(0.7 * u.size)))
+        margin = fit.info["margin"]
+        for i, d in enumerate(delays):
+            x = _lsq_from_gram(part, i, r.size, margin, offset)
+            coef = np.diff(np.r_[0.0, x[: r.size]])
+            g, b, c, m = held.normal_equations(i, offset=offset)
+            if offset:
+                coef = np.r_[coef, x[-1]]
+            want = np.sqrt(max(c - 2 * coef @ b + coef @ g @ coef, 0.0) / m)
+            assert fit.info["delay_holdout_rmse"][int(d)] == pytest.approx(want, rel=1e-7)
+        assert fit.delay == 2
 
 def test_fit_pi_refuses_bad_input():
     u = np.linspace(0, 1, 100)
