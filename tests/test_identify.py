@@ -70,6 +70,63 @@ def test_delay_is_found():
     assert fit.rmse < 1e-8
 
 
+
+def test_stacked_bounded_least_squares_equal_one_by_one(rng):
+    # the delay search solves its problems as one stack: each row is bounded_lstsq_gram's optimum,
+    # whether the unconstrained optimum is feasible, violates a bound (active-set fallback), the
+    # Gram matrix is singular (jitter fallback) or there are upper bounds (BVLS fallback)
+    from piezohyst.identify.lsq import bounded_lstsq_gram, bounded_lstsq_gram_many
+
+    a = rng.normal(size=(200, 6))
+    grams, atbs = [], []
+    for k in range(7):
+        ak = a * rng.uniform(0.5, 2.0, 6)
+        if k == 3:
+            ak[:, 5] = ak[:, 4]  # collinear columns: singular
+        grams.append(ak.T @ ak)
+        atbs.append(ak.T @ (ak @ rng.normal(1.0, 2.0 if k % 2 else 0.1, 6)))  # odd k: some < 0
+    lb = np.r_[np.zeros(5), -np.inf]
+    at_bound = 0
+    for ub in (np.full(6, np.inf), np.full(6, 3.0)):
+        for ks in (range(7), [0, 1, 2, 4, 5, 6]):  # with the singular one, and without
+            got = bounded_lstsq_gram_many(np.array(grams)[ks], np.array(atbs)[ks], lb, ub)
+            for row, k in enumerate(ks):
+                ref = bounded_lstsq_gram(grams[k], atbs[k], lb, ub)
+                at_bound += int(np.any(ref[:5] < 1e-9))
+
+                def cost(x, k=k):
+                    return x @ grams[k] @ x - 2 * atbs[k] @ x
+                assert cost(got[row]) == pytest.approx(cost(ref), rel=1e-9, abs=1e-9)
+                if k != 3:  # a singular problem's optimum is not unique, its cost is
+                    np.testing.assert_allclose(got[row], ref, rtol=1e-7, atol=1e-9)
+                assert np.all(got[row] >= lb - 1e-12) and np.all(got[row] <= ub + 1e-12)
+    assert at_bound >= 4  # the active-set fallback was needed
+
+
+def test_delay_search_scores_every_delay_as_one_fit_each():
+    # the held-out RMSE of each delay, from the stacked solves, is that of the delay's own bounded
+    # least-squares fit on the fitting part, evaluated on the held-out rows
+    from piezohyst.identify.pi import _lsq_from_gram, _split_gram
+
+    true = pv.pi_model()
+    u = rich_excitation(5000)
+    y = np.concatenate([[0.0, 0.0], true.simulate(u)[:-2]]) + np.random.default_rng(1).normal(0, 0.01, u.size)
+    for offset in (True, False):
+        fit = ph.fit_pi(u, y, n=12, u_max=100.0, delay="auto", max_auto_delay=5, fit_offset=offset)
+        r = fit.model.thresholds
+        delays = np.arange(6, dtype=np.int64)
+        part, held = _split_gram(u, y, r, delays, int(round(0.7 * u.size)))
+        margin = fit.info["margin"]
+        for i, d in enumerate(delays):
+            x = _lsq_from_gram(part, i, r.size, margin, offset)
+            coef = np.diff(np.r_[0.0, x[: r.size]])
+            g, b, c, m = held.normal_equations(i, offset=offset)
+            if offset:
+                coef = np.r_[coef, x[-1]]
+            want = np.sqrt(max(c - 2 * coef @ b + coef @ g @ coef, 0.0) / m)
+            assert fit.info["delay_holdout_rmse"][int(d)] == pytest.approx(want, rel=1e-7)
+        assert fit.delay == 2
+
 def test_fit_pi_refuses_bad_input():
     u = np.linspace(0, 1, 100)
     with pytest.raises(ValueError, match="same length"):

@@ -236,6 +236,83 @@ def test_pi_gram_equals_the_dense_matrix(setup, u, chunk, delays):
         assert nn == n - d and yty == g.yty[i]
 
 
+def _gram_sums(kernel, u, r, z, y, delays, *args):
+    """A Gram kernel's accumulators over the rows u[:N - max(delays)] from the states z."""
+    m, d = r.size, np.asarray(delays, dtype=np.int64)
+    g, b, s, zz = np.zeros((m, m)), np.zeros((m, d.size)), np.zeros(m), z.copy()
+    kernel(u[: u.size - int(d.max())], r, zz, y, d, g, b, s, *args)
+    return np.triu(g), b, s, zz
+
+
+@st.composite
+def gram_inputs(draw):
+    """Input records for the Gram kernels: joined pieces, smooth sines (long runs, cut every
+    _GRAM_RUN rows), sines with noise, white noise."""
+    kind = draw(st.sampled_from(["pieces", "sine", "noisy sine", "white"]))
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    if kind == "pieces":
+        u = draw(piecewise_signals())
+    else:
+        n = draw(st.integers(2, 6000))
+        t = np.arange(n) / draw(st.sampled_from([50.0, 500.0, 3000.0]))
+        u = draw(st.floats(-20, 20)) + draw(st.floats(1, 60)) * np.sin(2 * np.pi * t + draw(st.floats(0, 6)))
+        if kind == "noisy sine":
+            u += rng.normal(0, draw(st.sampled_from([1e-3, 0.05, 1.0])), n)
+        elif kind == "white":
+            u = rng.uniform(-50, 50, n)
+    if u.size < 12:
+        u = np.concatenate([u, np.linspace(u[-1], 0.0, 12)])
+    y = np.sin(np.arange(u.size) * 0.37) * 3 + 0.5 * u + rng.normal(0, 0.1, u.size)
+    return u, y
+
+
+@given(setup=pi_setups(), data=gram_inputs(), delays=st.lists(st.integers(0, 10), min_size=1, max_size=11),
+       chunk=st.sampled_from([7, 64, 500, 4096]), event_rows=st.sampled_from([0, 1, 6]))
+def test_event_driven_normal_equations_equal_the_dense_ones(setup, data, delays, chunk, event_rows):
+    # Z'Z, Z'y_d, Z'1 run by run (event-driven) are the dense pass's sums to rounding, on any
+    # input (white noise included: event_rows=0 never hands over to the dense pass), thresholds
+    # (unsorted ones and inconsistent states go dense) and delays; the final states too
+    r, _, z0 = setup
+    u, y = data
+    delays = [d for d in delays if d <= u.size - 2] or [0]
+    if setup[0].size > 1 and chunk == 7:
+        r = r[::-1].copy()  # unsorted thresholds too
+    ref = _gram_sums(P._gram_into, u, r, z0, y, delays)
+    got = _gram_sums(P._gram_auto_into, u, r, z0, y, delays, chunk, event_rows)
+    zmax = np.abs(u).max() + r.max() + np.abs(z0).max() + 1
+    tol = 1e-13 * u.size * zmax * (zmax + np.abs(y).max())
+    for a, b in zip(got[:3], ref[:3]):
+        np.testing.assert_allclose(a, b, rtol=0, atol=tol)
+    np.testing.assert_allclose(got[3], ref[3], rtol=0, atol=1e-12 * zmax)
+    if np.all(np.diff(r) >= 0) and P.state_is_consistent(r, z0):  # and run by run throughout
+        ev = _gram_sums(lambda *a: P._gram_events_into(*a, 0, u.size - max(delays), 0), u, r, z0, y, delays)
+        for a, b in zip(ev[:3], ref[:3]):
+            np.testing.assert_allclose(a, b, rtol=0, atol=tol)
+        np.testing.assert_allclose(ev[3], ref[3], rtol=0, atol=1e-12 * zmax)
+
+
+def test_event_driven_normal_equations_choose_by_the_input(rng):
+    # a smooth record goes run by run, white noise hands over to the dense pass within _GRAM_TRY
+    # rows of a chunk: the two give the same sums either way
+    r = ph.equal_thresholds(20, 100.0)
+    t = np.arange(30_000) * 1e-4
+    smooth = 50 + 50 * np.sin(2 * np.pi * t)
+    noise = rng.uniform(0, 100, t.size)
+    y = rng.normal(size=t.size)
+    d = np.arange(4, dtype=np.int64)
+    for u, done in ((smooth, 4096), (noise, P._GRAM_TRY)):
+        z = np.zeros(20)
+        stop = P._gram_events_into(u, r, z, y, d, np.zeros((20, 20)), np.zeros((20, 4)), np.zeros(20), 0, 4096,
+                                   P._GRAM_EVENT_ROWS)
+        assert stop == done if u is smooth else stop <= 2 * done
+        ref = _gram_sums(P._gram_into, u, r, np.zeros(20), y, d)
+        got = _gram_sums(P._gram_auto_into, u, r, np.zeros(20), y, d, P._GRAM_CHUNK, P._GRAM_EVENT_ROWS)
+        for a, b in zip(got[:3], ref[:3]):
+            np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max())
+        np.testing.assert_array_equal(got[3], ref[3])
+
+
 @pytest.mark.parametrize("m, chunk", [(70, 100), (70, None), (64, None)])
 def test_pi_gram_with_many_operators(rng, m, chunk):
     # past 64 operators pi_gram goes through BLAS chunk by chunk: the same sums

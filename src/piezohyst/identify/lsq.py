@@ -88,6 +88,38 @@ def bounded_lstsq_gram(gram: FloatArray, atb: FloatArray, lb: FloatArray, ub: Fl
     return np.asarray((x + shift) / norms)
 
 
+
+def bounded_lstsq_gram_many(grams: FloatArray, atbs: FloatArray, lb: FloatArray, ub: FloatArray) -> FloatArray:
+    """:func:`bounded_lstsq_gram` for a stack of problems ``grams[i], atbs[i]`` with the same
+    bounds, e.g. one per candidate delay: the first step (scaling, Cholesky factor, unconstrained
+    optimum) for all of them in a few stacked numpy calls, and :func:`bounded_lstsq_gram` for each
+    one whose unconstrained optimum violates a bound or whose factorisation fails. Each row of the
+    result is that problem's optimum (the same convex problem, so the same optimum up to rounding;
+    the per-problem Python overhead of a small problem is paid once instead of once each)."""
+    g = np.asarray(grams, dtype=np.float64)
+    b = np.asarray(atbs, dtype=np.float64)
+    k, p = b.shape
+    lb = np.broadcast_to(np.asarray(lb, dtype=np.float64), (p,))
+    ub = np.broadcast_to(np.asarray(ub, dtype=np.float64), (p,))
+    norms = np.sqrt(np.maximum(np.diagonal(g, axis1=1, axis2=2), 0.0))
+    norms[norms == 0] = 1.0
+    gs = g / (norms[:, :, None] * norms[:, None, :])
+    bs = b / norms
+    out = np.empty((k, p))
+    done = np.zeros(k, dtype=bool)
+    with np.errstate(all="ignore"):
+        try:
+            low = np.linalg.cholesky(gs)  # G = L L'
+        except np.linalg.LinAlgError:
+            low = None  # one of them needs the jitter: each on its own below
+        if low is not None:
+            x0 = np.linalg.solve(np.swapaxes(low, 1, 2), np.linalg.solve(low, bs[:, :, None]))[:, :, 0]
+            done = np.all(np.isfinite(x0), axis=1) & np.all(x0 >= lb * norms, axis=1) & np.all(x0 <= ub * norms, axis=1)
+            out[done] = x0[done] / norms[done]
+    for i in np.flatnonzero(~done):
+        out[i] = bounded_lstsq_gram(g[i], b[i], lb, ub)
+    return out
+
 def _cholesky(g: FloatArray) -> FloatArray:
     """Upper Cholesky factor of a (scaled) Gram matrix, with a tiny jitter when it is singular."""
     import scipy.linalg as sl

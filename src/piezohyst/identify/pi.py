@@ -26,7 +26,7 @@ from .._validation import FloatArray, as_scalar
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
 from ..models.play import GramStats, _gram_stats, default_chunk_rows, pi_gram, play_outputs
 from ..pso import pso_minimize
-from .lsq import bounded_lstsq_gram
+from .lsq import bounded_lstsq_gram, bounded_lstsq_gram_many
 from .result import FitResult, paired_signals as _pair, unpack_data
 
 
@@ -49,10 +49,19 @@ def _lsq_from_gram(stats: Any, i: int, nr: int, margin: float, fit_offset: bool)
     return bounded_lstsq_gram(m.T @ ata @ m, m.T @ aty, lb, np.full(m.shape[1], np.inf))
 
 
-def _coefficients(x: FloatArray, nr: int) -> FloatArray:
-    """Weights (and offset) from partial sums (and offset)."""
+def _lsq_from_gram_many(stats: Any, nr: int, margin: float, fit_offset: bool) -> FloatArray:
+    """:func:`_lsq_from_gram` for every delay of ``stats`` (rows), as one stack of problems."""
+    ata, aty, _, _ = stats.normal_equations_all(offset=fit_offset)
+    m = _partial_sum_map(nr, fit_offset)
+    lb = np.full(m.shape[1], -np.inf)
+    lb[:nr] = margin
+    return bounded_lstsq_gram_many(m.T @ ata @ m, aty @ m, lb, np.full(m.shape[1], np.inf))
+
+
+def _coefficients_many(x: FloatArray, nr: int) -> FloatArray:
+    """Weights (and offset) from partial sums (and offset), a row per problem."""
     out = np.array(x, dtype=np.float64, copy=True)
-    out[:nr] = np.diff(np.concatenate([[0.0], x[:nr]]))
+    out[:, :nr] = np.diff(x[:, :nr], axis=1, prepend=0.0)
     return out
 
 
@@ -124,7 +133,8 @@ def fit_pi(
         squares) on the first 70 % of the record, the one that predicts the last 30 % best is
         kept (a delay chosen on the fitting data itself absorbs dynamics and predicts new data
         worse), and the fit is redone on the whole record with it. The normal equations of every
-        delay come from two streamed passes, so this costs about two fits.
+        delay come from one streamed pass and their small least-squares problems are solved as one
+        stack, so this costs at most about two fits.
     margin : float, optional
         Smallest allowed partial sum of the weights (default 1e-3 of the data's mean slope):
         keeps the model invertible with a bounded inverse slope.
@@ -189,12 +199,12 @@ def fit_pi(
         # held-out rows' (the whole record's are their sum)
         part, held = _split_gram(us, ys, r, np.asarray(delays, dtype=np.int64), int(round(0.7 * us.size)))
         whole = _sum_gram(part, held)
-        hold: dict[int, float] = {}
-        for i, d in enumerate(delays):
-            x = _lsq_from_gram(part, i, nr, margin, fit_offset)
-            g, b, c, m = held.normal_equations(i, offset=fit_offset)
-            coef = _coefficients(x, nr)
-            hold[d] = float(np.sqrt(max(float(c - 2 * coef @ b + coef @ g @ coef), 0.0) / m))
+        # every delay's bounded least squares at once (a stack of small problems), and its
+        # held-out residual x'A'Ax - 2 x'A'y + y'y from the held-out rows' normal equations
+        coef = _coefficients_many(_lsq_from_gram_many(part, nr, margin, fit_offset), nr)
+        g, b, c, m = held.normal_equations_all(offset=fit_offset)
+        res = c - 2 * np.einsum("ki,ki->k", coef, b) + np.einsum("ki,kij,kj->k", coef, g, coef)
+        hold = {d: float(np.sqrt(max(float(res[i]), 0.0) / m[i])) for i, d in enumerate(delays)}
         delay = min(hold, key=lambda d: hold[d])
         info["delay_holdout_rmse"] = hold
         stats, i_d = whole, delays.index(delay)

@@ -18,7 +18,8 @@ Two ways to run eq. (3) over a whole signal give the same outputs to rounding:
 :func:`pi_simulate` picks one per call from a cheap look at the input (:func:`event_work`):
 the event-driven loop for smooth records, the dense one where nearly every sample reverses
 and moves many operators (white noise). :func:`pi_gram` accumulates the normal equations of a
-P-I fit in chunks, without the ``(N, n)`` regressor matrix.
+P-I fit in chunks, without the ``(N, n)`` regressor matrix, likewise event-driven (a run of rows
+between two events at a time) where the input is smooth and dense where it is not.
 """
 
 from __future__ import annotations
@@ -588,6 +589,234 @@ def _gram_into(
                 gram[i, j] += acc
 
 
+# -- event-driven normal equations ---------------------------------------------------------------
+# The idea of the event-driven simulation (above) applied to Z'Z, Z'y_d and Z'1. Between two
+# events (a reversal of the input, an operator starting to move) every operator's output is
+# either glued to the input, z_i(k) = u(k) - s r_i (operators 0..j-1, one sense s), or constant,
+# z_i(k) = c_i. Over such a run of rows k = p..q-1, with v(k) = u(k) - u(p) (centred on the
+# run's first input, so no large sums cancel) and a_i = u(p) - s r_i or c_i,
+#     sum z_i z_l = [i,l<j] S_vv + ([i<j] a_l + [l<j] a_i) S_v + a_i a_l (q - p)
+#     sum z_i y(k+d) = [i<j] S_vy,d + a_i S_y,d        sum z_i = [i<j] S_v + a_i (q - p)
+# so a run costs the sums S_v, S_vv, S_y,d, S_vy,d over its rows (2 + 2D per row, vectorised),
+# and one update of the n^2 + nD + n accumulators: on smooth records a few runs per operator
+# and reversal, where the dense pass spends (n(n+1)/2 + nD) products on every row. The sums of a
+# run start from zero (no prefix sums are differenced) and a run is cut every _GRAM_RUN rows, so
+# the rounding is that of blockwise sums, as in the dense pass. The events are found with the
+# dense loop's own comparisons (x - r_j > z_j rising, x + r_j < z_j falling) and the states it
+# leaves are the dense loop's own values (x - s r_i of the input where an operator stopped), so
+# they agree bit for bit wherever the moving operators are a prefix (consistent states: above).
+#
+# Where the input reverses nearly every row (noise), every row is a run of its own and the
+# update costs more than the dense row: the event-driven pass gives up on a chunk of rows once
+# it has met more than one event per _GRAM_EVENT_ROWS rows (judged after _GRAM_TRY rows), and
+# the dense pass takes the chunk's rest and the next 1, 2, 4, 8 chunks (after 1, 2, 3, 4+ such
+# failures in a row), so white noise pays for a try on one chunk in nine.
+_GRAM_RUN = 2048  # longest run summed at once
+_GRAM_CHUNK = 4096  # rows per choice between the event-driven and the dense pass
+_GRAM_TRY = 64  # rows the event-driven pass runs before it judges its event rate
+_GRAM_EVENT_ROWS = 6  # gives up above one event per this many rows (an event costs several dense rows)
+
+
+@njit_fast({"reassoc", "contract", "nsz"})
+def _run_sums(u: FloatArray, y: FloatArray, delays: Any, p: int, q: int, c: float,
+              glued: bool, sums: FloatArray) -> None:  # pragma: no cover - compiled
+    """``sums`` = [S_v, S_vv, S_y,d..., S_vy,d...] over the rows p..q-1, v = u - c (the u sums
+    only if ``glued``: nothing moves with the input otherwise). Slices, so each loop is a
+    plain vectorised reduction."""
+    nd = delays.shape[0]
+    uu = u[p:q]
+    sv = svv = 0.0
+    if glued:
+        for k in range(uu.shape[0]):
+            v = uu[k] - c
+            sv += v
+            svv += v * v
+    sums[0] = sv
+    sums[1] = svv
+    for t in range(nd):
+        yy = y[p + delays[t]: q + delays[t]]
+        sy = svy = 0.0
+        if glued:
+            for k in range(yy.shape[0]):
+                yk = yy[k]
+                sy += yk
+                svy += (uu[k] - c) * yk
+        else:
+            for k in range(yy.shape[0]):
+                sy += yy[k]
+        sums[2 + t] = sy
+        sums[2 + nd + t] = svy
+
+
+@njit_fast({"reassoc", "contract", "nsz"})
+def _add_run(a: FloatArray, j: int, rows: int, sums: FloatArray, gram: FloatArray, zty: FloatArray,
+             colsum: FloatArray) -> None:  # pragma: no cover - compiled
+    """One run's share of the accumulators: operators 0..j-1 are v + a_i, the rest a_i. Only
+    the upper triangle of ``gram`` is right (as :func:`_gram_into`'s); the update goes over the
+    whole square nonetheless, full rows vectorising better than rows cut at the diagonal."""
+    m = a.shape[0]
+    nd = zty.shape[1]
+    sv, svv, nr = sums[0], sums[1], float(rows)
+    for i in range(m):  # a_i a_q L + [i<j] a_q S_v: a rank-one update, row by row
+        b = a[i] * nr
+        if i < j:
+            b += sv
+        gi = gram[i]
+        for q in range(m):
+            gi[q] += a[q] * b
+    for i in range(j):  # + [q<j] a_i S_v + [i,q<j] S_vv; above the diagonal, q < j means i < j
+        gi = gram[i]
+        c = svv + a[i] * sv
+        for q in range(j):
+            gi[q] += c
+    for i in range(j):
+        colsum[i] += sv + a[i] * nr
+        for t in range(nd):
+            zty[i, t] += sums[2 + nd + t] + a[i] * sums[2 + t]
+    for i in range(j, m):
+        colsum[i] += a[i] * nr
+        for t in range(nd):
+            zty[i, t] += a[i] * sums[2 + t]
+
+
+@njit
+def _flush_run(u: FloatArray, y: FloatArray, delays: Any, r: FloatArray, cst: FloatArray, j: int,
+               s: float, p: int, q: int, gram: FloatArray, zty: FloatArray, colsum: FloatArray,
+               a: FloatArray, sums: FloatArray) -> None:  # pragma: no cover - compiled
+    """Rows p..q-1, over which operators 0..j-1 are glued to the input with sense ``s`` and the
+    others hold ``cst``, into the accumulators (cut every _GRAM_RUN rows)."""
+    m = r.shape[0]
+    for i in range(j, m):
+        a[i] = cst[i]
+    while p < q:
+        e = min(q, p + _GRAM_RUN)
+        c = u[p] if j > 0 else 0.0
+        for i in range(j):
+            a[i] = c - s * r[i]
+        _run_sums(u, y, delays, p, e, c, j > 0, sums)
+        _add_run(a, j, e - p, sums, gram, zty, colsum)
+        p = e
+
+
+@njit
+def _gram_events_into(
+    u: FloatArray, r: FloatArray, z: FloatArray, y: FloatArray, delays: Any, gram: FloatArray,
+    zty: FloatArray, colsum: FloatArray, k0: int, k1: int, event_rows: int,
+) -> int:  # pragma: no cover - compiled
+    """As :func:`_gram_into` for the rows k0..k1-1 (``y[k + d]`` with global indices), event by
+    event; ``r`` sorted and ``z`` consistent (:func:`state_is_consistent`). Returns the row it
+    stopped before: ``k1``, or earlier if it met more than one event per ``event_rows`` rows
+    (0: never gives up); ``z`` then holds the states after the rows done, for the dense pass."""
+    m = r.shape[0]
+    nd = delays.shape[0]
+    cst = z.copy()  # the states of the operators not glued to the input
+    a = np.empty(m)
+    sums = np.empty(2 + 2 * nd)
+    k = k0
+    s = 0.0
+    while k < k1:  # nothing moves until operator 0 does; its sense starts the first run
+        x = u[k]
+        if x - r[0] > cst[0]:
+            s = 1.0
+            break
+        if x + r[0] < cst[0]:
+            s = -1.0
+            break
+        k += 1
+    _flush_run(u, y, delays, r, cst, 0, 1.0, k0, k, gram, zty, colsum, a, sums)
+    if k == k1:
+        return k1
+    j = 0  # operators 0..j-1 are glued to the input
+    start = k  # the current run's first row
+    events = 0
+    sxp = s * u[k]  # s times the previous input (the first is no reversal)
+    while k < k1:
+        x = u[k]
+        sx = s * x
+        rev = sx < sxp
+        if rev or (j < m and sx - r[j] > s * cst[j]):
+            if k > start:
+                _flush_run(u, y, delays, r, cst, j, s, start, k, gram, zty, colsum, a, sums)
+                start = k
+                events += 1
+                if k - k0 >= _GRAM_TRY and events * event_rows > k - k0:
+                    break  # too many events: the dense pass goes on from row k
+            if rev:  # the glued operators stop where the previous input left them
+                xp = s * sxp
+                for i in range(j):
+                    cst[i] = xp - s * r[i]
+                j = 0
+                s = -s
+                sx = -sx
+            while j < m and sx - r[j] > s * cst[j]:  # every operator that starts to move at x
+                j += 1
+        sxp = sx
+        k += 1
+    if k == k1:
+        _flush_run(u, y, delays, r, cst, j, s, start, k1, gram, zty, colsum, a, sums)
+    xp = s * sxp  # the last input done
+    for i in range(j):
+        z[i] = xp - s * r[i]
+    for i in range(j, m):
+        z[i] = cst[i]
+    return k
+
+
+@njit
+def _gram_auto_into(
+    u: FloatArray, r: FloatArray, z: FloatArray, y: FloatArray, delays: Any, gram: FloatArray,
+    zty: FloatArray, colsum: FloatArray, chunk: int, event_rows: int,
+) -> None:  # pragma: no cover - compiled
+    """:func:`_gram_into`'s sums, in chunks of ``chunk`` rows: event-driven where the events are
+    sparse enough (``event_rows``: :func:`_gram_events_into`), dense elsewhere and wherever ``r``
+    is unsorted or ``z`` not consistent."""
+    n = u.shape[0]
+    m = r.shape[0]
+    ordered = True
+    for i in range(m - 1):
+        if r[i + 1] < r[i]:
+            ordered = False
+    k = 0
+    wait = 0  # chunks to run dense before the event-driven pass is tried again
+    failed = 0  # its failures in a row
+    while k < n:
+        kc = min(n, k + chunk)
+        if wait > 0:
+            wait -= 1
+        elif ordered and state_is_consistent(r, z):
+            k = _gram_events_into(u, r, z, y, delays, gram, zty, colsum, k, kc, event_rows)
+            if k < kc:  # it gave up: wait 1, 2, 4, 8 chunks before the next try
+                wait = 1 << min(failed, 3)
+                failed += 1
+            else:
+                failed = 0
+        if k < kc:
+            _gram_into(u[k:kc], r, z, y[k:], delays, gram, zty, colsum)
+        k = kc
+
+
+@njit_fast({"reassoc", "contract", "nsz"})
+def _y_sums(y: FloatArray, delays: Any) -> tuple[FloatArray, FloatArray]:  # pragma: no cover
+    """``1'y[d:]`` and ``y[d:]'y[d:]`` for every delay: the whole record's sums less those of its
+    first ``d`` samples (compiled: numpy's dot goes to a threaded BLAS, whose spinning costs
+    this thread more than the sum itself on a busy machine)."""
+    s1 = s2 = 0.0
+    for k in range(y.shape[0]):
+        s1 += y[k]
+        s2 += y[k] * y[k]
+    nd = delays.shape[0]
+    ysum = np.empty(nd)
+    yty = np.empty(nd)
+    for t in range(nd):
+        h1 = h2 = 0.0
+        for k in range(delays[t]):
+            h1 += y[k]
+            h2 += y[k] * y[k]
+        ysum[t] = s1 - h1
+        yty[t] = s2 - h2
+    return ysum, yty
+
+
 @dataclass(frozen=True)
 class GramStats:
     """The normal equations of a linear P-I fit, for one or more output delays.
@@ -637,6 +866,20 @@ class GramStats:
         ata[n, n] = nr
         return ata, np.append(b, self.ysum[i]), float(self.yty[i]), nr
 
+    def normal_equations_all(self, *, offset: bool = True) -> tuple[FloatArray, FloatArray, FloatArray, Any]:
+        """:meth:`normal_equations` of every delay at once, stacked along a first axis."""
+        nr = np.asarray(self.n_samples)
+        yty = np.asarray(self.yty, dtype=np.float64)
+        if not offset:
+            return np.array(self.gram, dtype=np.float64), np.array(self.zty, dtype=np.float64), yty, nr
+        k, n = self.zty.shape
+        ata = np.empty((k, n + 1, n + 1))
+        ata[:, :n, :n] = self.gram
+        ata[:, :n, n] = ata[:, n, :n] = self.zsum
+        ata[:, n, n] = nr
+        aty = np.concatenate([self.zty, np.asarray(self.ysum)[:, None]], axis=1)
+        return ata, aty, yty, nr
+
 
 def pi_gram(
     u: Any, thresholds: Any, y: Any, *, delays: Any = (0,), initial_state: Any = None,
@@ -648,7 +891,9 @@ def pi_gram(
     a block of rows at a time, carrying the operator states from block to block, and only their
     products are kept: ``Z'Z``, ``Z'y``, ``Z'1``, ``1'y``, ``y'y`` for every delay at once (one
     pass over the data, whatever the number of delays). Up to 64 operators one compiled pass does
-    it all with blocks of 64 rows; with more, chunks of ``chunk_rows`` rows go through BLAS.
+    it all: event-driven, a run of rows between two events (a reversal of the input, an operator
+    starting to move) at a time, where those are sparse (smooth inputs), and in blocks of 64 rows
+    elsewhere; with more operators, chunks of ``chunk_rows`` rows go through BLAS.
     Memory: at most one chunk (16 MiB by default) instead of ``8 N n`` bytes.
 
     Parameters
@@ -719,7 +964,8 @@ def _gram_stats(us: FloatArray, r: FloatArray, ys: FloatArray, d_arr: Any, z: Fl
     zty = np.zeros((m, nd))
     zsum = np.zeros(m)
     if m <= _GRAM_COMPILED_MAX:
-        _gram_into(us[:common], r, z, ys, d_arr, gram, zty, zsum)  # z carries the states on
+        # z carries the states on
+        _gram_auto_into(us[:common], r, z, ys, d_arr, gram, zty, zsum, _GRAM_CHUNK, _GRAM_EVENT_ROWS)
         gram = np.triu(gram) + np.triu(gram, 1).T
     else:
         # one buffer, refilled chunk after chunk; column-major, which BLAS multiplies fastest
@@ -742,9 +988,7 @@ def _gram_stats(us: FloatArray, r: FloatArray, ys: FloatArray, d_arr: Any, z: Fl
         out_s[i] = zsum + extra.sum(axis=0)
         out_b[i] = zty[:, i] + extra.T @ ys[common + d: n]
     # sums over y[d:]: the whole record's, less its first d samples'
-    head = ys[:dmax]
-    ysum = ys.sum() - np.array([head[:d].sum() for d in d_arr])
-    yty = ys @ ys - np.array([head[:d] @ head[:d] for d in d_arr])
+    ysum, yty = _y_sums(ys, d_arr)
     return GramStats(delays=d_arr, n_samples=n - d_arr, gram=out_g, zty=out_b, zsum=out_s,
                      ysum=ysum, yty=yty), at_common
 
