@@ -65,8 +65,9 @@ ablation and in ``tests/test_commission.py``):
    than the best by more than 15 % restores the best correction and either narrows the band back
    (if it had been widened since) or halves the gain: what is left then does not repeat (noise, a
    loop that hunts), and a smaller gain averages it over cycles instead of copying it into the
-   correction; after three halvings learning stops. The run's ``info`` lists every cycle's RMS
-   and e_max, the final gain and band. On a buffered plant learning stops (the best play is
+   correction; after three halvings, or three cycles in a row without a new best (converged: what
+   is left does not repeat), learning stops with the best correction. The run's ``info`` lists
+   every cycle's RMS and e_max, the final gain and band. On a buffered plant learning stops (the best play is
    kept) as soon as a play's RMS error is no longer below 0.95 times the best so far.
 """
 
@@ -181,6 +182,10 @@ class _Learning:
       the correction. Learning stops when the gain has been halved ``MAX_HALVINGS`` times.
       The cycle after a revert is neither judged nor learnt from: it still carries the bad
       cycle's transient (the feedback's integral, the stage's memory).
+    * ``PATIENCE`` cycles in a row without a new best mean learning has converged: what is left
+      does not repeat, and learning on would copy it into the correction (a stage whose loop
+      gain changes sign after reversals turned that into single cycles 40 % worse). Learning
+      stops with the best correction.
     * A cycle that improves on the best by less than ``STALL``, after at least two cycles in the
       current band, means learning has converged in it: the band (the zero-phase low-pass Q)
       doubles, up to ``cutoff_max``, so the error's sharper repeatable features (the corners at
@@ -191,6 +196,7 @@ class _Learning:
     TOLERANCE = 0.15
     STALL = 0.05
     MAX_HALVINGS = 3
+    PATIENCE = 3
 
     def __init__(self, p: int, dt: float, gain: float, cutoff: float, cutoff_max: float):
         self.dt = dt
@@ -205,6 +211,8 @@ class _Learning:
         self.widen = True
         self.settling = False
         self.in_band = 0
+        self.since_best = 0
+        self.stopped = False
 
     def update(self, corr: FloatArray, e: FloatArray, e_max: float) -> tuple[FloatArray, bool]:
         if self.settling:  # the cycle after a revert still carries the bad one's transient
@@ -223,6 +231,12 @@ class _Learning:
         stalled = e_max > (1.0 - self.STALL) * self.best
         if e_max < self.best:
             self.best, self.best_corr, self.best_cutoff = e_max, corr.copy(), self.cutoff
+            self.since_best = 0
+        else:
+            self.since_best += 1
+            if self.since_best >= self.PATIENCE:  # converged: what is left does not repeat
+                self.stopped = True
+                return self.best_corr.copy(), False
         self.in_band += 1
         # a band is widened once it has had two cycles to converge in
         if stalled and self.in_band >= 2 and self.widen and self.cutoff < self.cutoff_max:
