@@ -5,7 +5,9 @@ do not share, 2-20 kHz, delays 0-5 samples, unipolar and bipolar, strokes 1.5-10
 tuned on them. For each: ``commission`` chooses and fits a model on its own data, and the
 feedforward alone (``ctl.track(ref, feedback=False, learning=False)``) tracks 1, 3 and 5 Hz
 sinusoids over 10-90 % of the stage's steady stroke (the range a user would read off a full-range
-open-loop loop) to within 2 % of the span (issue 11's goal), with a command free of chatter.
+open-loop loop) to within 2 % of the span (issue 11's goal), with a command free of chatter; with
+the feedback tuned on the stage and learning, to within 1 % once learning has converged (e_max over
+the last 3 of 12 cycles).
 """
 
 import warnings
@@ -73,6 +75,49 @@ def test_feedforward_alone_within_2_percent(commissioned, freq, request):
     gain = np.ptp(cmd) / np.ptp(ref)
     assert np.abs(np.diff(cmd)).max() <= 20 * gain * np.abs(np.diff(ref)).max()
     assert out.e_max_percent <= 2.0, (stage.name, ctl.fit.info["chosen"], out.e_max_percent)
+
+
+#: (stage, frequency) pairs whose feedback + learning misses 1 % today, with the reason; strict
+_STAIRS = ("hard relays: the output climbs in stairs (up to 0.6 % of the stroke) that, swept at 1-5 Hz, "
+           "ring the 1.5 kHz resonance; the feedforward alone leaves a repeatable error of 0.84/0.68/1.28 % "
+           "of span (1/3/5 Hz) of which 0.65/0.73/1.22 % lies above 500 Hz, beyond any learning band or "
+           "feedback loop, and the integral loop hunts on the stairs (e_max varies 0.88-1.46 % from cycle to "
+           "cycle; at 1 Hz it stays within 1 %, at 0.96 %)")
+KNOWN_SHORT_FBL = {
+    ("relay Preisach", 3.0): _STAIRS + "; at 3 Hz the period (1666.7 samples) is not whole, so the stair "
+                             "pattern shifts from cycle to cycle and cannot be learnt; 1.15 % measured",
+    ("relay Preisach", 5.0): _STAIRS + "; 1.43 % measured",
+}
+
+#: cycles of a feedback + learning run, and the last ones read: the error once learning has converged
+FBL_CYCLES, FBL_READ = 12, 3
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("freq", [1.0, 3.0, 5.0])
+def test_feedback_and_learning_within_1_percent(commissioned, freq, request):
+    """Issue 11's goal with the whole controller: integral feedback (tuned on the stage by the
+    bounded experiments) and iterative learning, over 12 cycles; the error a user reads once
+    learning has converged, e_max over the last three cycles, within 1 % of the span, and the
+    command as free of chatter as the feedforward's test asks."""
+    stage, ctl, (a, b) = commissioned
+    key = (stage.name.split(",")[0], freq)
+    if key in KNOWN_SHORT_FBL:
+        request.applymarker(pytest.mark.xfail(reason=KNOWN_SHORT_FBL[key], strict=True))
+    if ctl.tuning is None:  # the fixture commissions with tune=False; tune once per stage
+        ctl.tune()
+    ref = ph.sinusoid(freq, FBL_CYCLES, a, b, stage.dt)
+    period = int(round(1.0 / (freq * stage.dt)))
+    out = ctl.track(ref, period=period)
+    assert out.info["feedback"] and out.info["learning"] and ctl.tuning.ki > 0
+    last = slice((FBL_CYCLES - FBL_READ) * period, FBL_CYCLES * period)
+    e_max = 100.0 * float(np.abs(out.error[last]).max()) / float(np.ptp(ref))
+    cmd = out.command[period:]
+    gain = np.ptp(cmd) / np.ptp(ref)
+    assert np.abs(np.diff(cmd)).max() <= 20 * gain * np.abs(np.diff(ref)).max()
+    per_cycle = [round(100.0 * float(np.abs(out.error[k * period:(k + 1) * period]).max()) / float(np.ptp(ref)), 2)
+                 for k in range(FBL_CYCLES)]
+    assert e_max <= 1.0, (stage.name, e_max, per_cycle, ctl.tuning.ki)
 
 
 @pytest.mark.slow

@@ -51,13 +51,24 @@ ablation and in ``tests/test_commission.py``):
 5. **Iterative learning** for references that repeat. On a per-sample plant, after each cycle
    the measured error corrects the feedforward's input for the next one, ``c <- Q(c + gamma e)``,
    with ``Q`` a zero-phase low-pass (cut-off ``ilc_cutoff_hz``, default 15 harmonics of the
-   reference, at least 50 Hz). On a buffered plant the same rule runs across plays of the whole
-   table (play, measure, correct, play again; at most ``max_plays``). It converges when
-   ``|Q(w)| |1 - gamma G(w)| < 1`` wherever Q passes, G being the response of the output to the
-   correction; with the model's inverse in the loop ``G ~ 1`` below the cut-off, so
-   ``gamma = 0.5`` gives a contraction of about 0.5 per cycle. Learning stops (the best
-   correction is kept) as soon as a cycle's RMS error is no longer below 0.95 times the best so
-   far.
+   reference, at least 50 Hz, to begin with). On a buffered plant the same rule runs across plays
+   of the whole table (play, measure, correct, play again; at most ``max_plays``). It converges
+   when ``|Q(w)| |1 - gamma G(w)| < 1`` wherever Q passes, G being the response of the output to
+   the correction; with the model's inverse in the loop ``G ~ 1`` below the cut-off, so
+   ``gamma = 0.5`` gives a contraction of about 0.5 per cycle. Where G is not ~1 (above an
+   unmodelled resonance, where the loop is flat after reversals) it does not, and what decides is
+   the figure of merit: on a per-sample plant every cycle is judged on its e_max against the best
+   cycle so far, whose correction is kept. A cycle that improves little means the error left in
+   the band is learnt: the band doubles (the error's sharp repeatable features, such as the corners
+   at reversals, lie above 15 harmonics), up to ``MAX_CUTOFF_FRACTION`` (5 %) of the sample rate,
+   a tenth of Nyquist, where one sample of delay misjudged costs 18 degrees of phase. A cycle worse
+   than the best by more than 15 % restores the best correction and either narrows the band back
+   (if it had been widened since) or halves the gain: what is left then does not repeat (noise, a
+   loop that hunts), and a smaller gain averages it over cycles instead of copying it into the
+   correction; after three halvings, or three cycles in a row without a new best (converged: what
+   is left does not repeat), learning stops with the best correction. The run's ``info`` lists
+   every cycle's RMS and e_max, the final gain and band. On a buffered plant learning stops (the best play is
+   kept) as soon as a play's RMS error is no longer below 0.95 times the best so far.
 """
 
 from __future__ import annotations
@@ -155,6 +166,85 @@ def _lowpass_periodic(x: FloatArray, dt: float, cutoff_hz: float) -> FloatArray:
     return np.fft.irfft(spec, x.size)
 
 
+class _Learning:
+    """The iterative learning of one per-sample tracking run (module docstring, step 5).
+
+    ``update(corr, e, e_max)`` takes the correction applied during a cycle, that cycle's error and
+    its largest magnitude (the figure of merit), and returns the correction for the next cycle and
+    whether learning goes on.
+
+    * Judged on e_max, over every cycle, against the best cycle so far (whose correction is kept).
+    * A cycle worse than the best by more than ``TOLERANCE`` (e_max of one cycle is noisy) means the
+      last change did harm: the best correction is restored and, if the band had been widened
+      since the best, the band goes back to the best's and stays there; otherwise the gain is
+      halved: with the repeatable error learnt, what is left does not repeat (noise, a feedback
+      loop hunting), and a smaller gain averages it over more cycles instead of copying it into
+      the correction. Learning stops when the gain has been halved ``MAX_HALVINGS`` times.
+      The cycle after a revert is neither judged nor learnt from: it still carries the bad
+      cycle's transient (the feedback's integral, the stage's memory).
+    * ``PATIENCE`` cycles in a row without a new best mean learning has converged: what is left
+      does not repeat, and learning on would copy it into the correction (a stage whose loop
+      gain changes sign after reversals turned that into single cycles 40 % worse). Learning
+      stops with the best correction.
+    * A cycle that improves on the best by less than ``STALL``, after at least two cycles in the
+      current band, means learning has converged in it: the band (the zero-phase low-pass Q)
+      doubles, up to ``cutoff_max``, so the error's sharper repeatable features (the corners at
+      reversals) can be learnt too; whether the plant still follows there is judged by the next
+      cycles, as above.
+    """
+
+    TOLERANCE = 0.15
+    STALL = 0.05
+    MAX_HALVINGS = 3
+    PATIENCE = 3
+
+    def __init__(self, p: int, dt: float, gain: float, cutoff: float, cutoff_max: float):
+        self.dt = dt
+        self.gain = gain
+        self.cutoff = cutoff
+        self.cutoff_max = max(cutoff_max, cutoff)
+        self.best = math.inf
+        self.best_corr = np.zeros(p)
+        self.best_cutoff = cutoff
+        self.halvings = 0
+        self.reverts = 0
+        self.widen = True
+        self.settling = False
+        self.in_band = 0
+        self.since_best = 0
+        self.stopped = False
+
+    def update(self, corr: FloatArray, e: FloatArray, e_max: float) -> tuple[FloatArray, bool]:
+        if self.settling:  # the cycle after a revert still carries the bad one's transient
+            self.settling = False
+            return corr, True
+        if e_max > (1.0 + self.TOLERANCE) * self.best:
+            self.reverts += 1
+            self.settling = True
+            if self.cutoff > self.best_cutoff:
+                self.cutoff = self.best_cutoff
+                self.widen = False
+            else:
+                self.gain *= 0.5
+                self.halvings += 1
+            return self.best_corr.copy(), self.halvings < self.MAX_HALVINGS
+        stalled = e_max > (1.0 - self.STALL) * self.best
+        if e_max < self.best:
+            self.best, self.best_corr, self.best_cutoff = e_max, corr.copy(), self.cutoff
+            self.since_best = 0
+        else:
+            self.since_best += 1
+            if self.since_best >= self.PATIENCE:  # converged: what is left does not repeat
+                self.stopped = True
+                return self.best_corr.copy(), False
+        self.in_band += 1
+        # a band is widened once it has had two cycles to converge in
+        if stalled and self.in_band >= 2 and self.widen and self.cutoff < self.cutoff_max:
+            self.cutoff = min(2.0 * self.cutoff, self.cutoff_max)
+            self.in_band = 0
+        return _lowpass_periodic(corr + self.gain * e, self.dt, self.cutoff), True
+
+
 @dataclass
 class CommissionedController:
     """Feedforward (the identified model's inverse) + integral feedback + iterative learning,
@@ -167,6 +257,8 @@ class CommissionedController:
     learning_gain: float = 0.5
     ilc_cutoff_hz: float | None = None
     time_s: float = 0.0
+    #: the learning's widest band, as a fraction of the sample rate (module docstring, step 5)
+    MAX_CUTOFF_FRACTION = 0.05
     info: dict[str, Any] = field(default_factory=dict)
     limits: CommandLimits | None = None
     max_plays: int = 8
@@ -209,6 +301,18 @@ class CommissionedController:
             "limits": self._limits().to_dict(),
             "warnings": list(self.fit.warnings),
         }
+
+    def tune(self, options: SafeTuningOptions | None = None) -> dict[str, Any]:
+        """Tune the integral feedback on the plant (module docstring, step 4), as ``commission``
+        does with ``tune=True``: for a controller commissioned with ``tune=False``, or to tune
+        again with other ``options``. Returns what the safe layer counted during the experiments."""
+        if self.mode != "step":
+            raise ValueError(NO_LOOP.replace("no feedback: ", "cannot tune feedback: "))
+        tguard = GuardedPlant(self.plant, self._limits())
+        self.tuning = tune_integral_safely(tguard, self.feedforward(), self.model, delay=self.delay,
+                                           level=float(np.median(self.identification.y)),
+                                           volts_per_um=self.volts_per_um, options=options)
+        return tguard.counts()
 
     def feedforward(self) -> Compensator:
         """The identified model's compensator (desired µm in, volts out), at the plant's rate."""
@@ -261,10 +365,11 @@ class CommissionedController:
         pid = self.tuning.pid(dt) if (feedback and self.tuning is not None) else None
         d = self.delay
         corr = np.zeros(p) if learn else None
-        best_corr = corr
-        best_rms = np.inf
+        corr_prev = corr
+        fade_start = fade_end = 0
         learning_on = learn
         cycle_rms: list[float] = []
+        cycle_emax: list[float] = []
         learning_stopped: str | None = None
         learned = False  # a correction has been applied in this run
         vpu = self.volts_per_um
@@ -285,12 +390,17 @@ class CommissionedController:
         # where the range clipped the command, learning cannot act: no correction builds up there
         clipped_at = np.zeros(n + d, dtype=bool)
         sat = 0
-        cutoff = self._cutoff(per, dt)
+        learner = _Learning(p, dt, self.learning_gain, self._cutoff(per, dt),
+                            self.ilc_cutoff_hz or self.MAX_CUTOFF_FRACTION / dt)
         try:
             for k in range(n):
                 fb = pid.step(r[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
                 j = min(k + d, n - 1)
-                target = r[j] + (corr[j % p] if corr is not None else 0.0)
+                c = corr[j % p] if corr is not None else 0.0
+                if k < fade_end:  # a new correction takes over smoothly, not as a step at the switch
+                    w = 0.5 * (1.0 - math.cos(math.pi * (k - fade_start) / (fade_end - fade_start)))
+                    c = corr_prev[j % p] + w * (c - corr_prev[j % p])  # type: ignore[index]
+                target = r[j] + c
                 uk = ff.step(target) + fb
                 try:
                     watch.command(k, uk)
@@ -303,7 +413,7 @@ class CommissionedController:
                     if not learned or learning_stopped is not None:
                         raise
                     corr = np.zeros(p)
-                    best_corr = corr
+                    fade_end = 0
                     learning_on = False
                     learning_stopped = exc.reason
                     watch.n_lo = watch.n_hi = 0
@@ -318,29 +428,29 @@ class CommissionedController:
                     c0 = k + 1 - p
                     e = r[c0:k + 1] - y[c0:k + 1]
                     rms = float(np.sqrt(np.mean(e**2)))
+                    e_max = float(np.max(np.abs(e)))
                     e = np.where(clipped_at[c0:k + 1], 0.0, e)
                     cycle_rms.append(rms)
+                    cycle_emax.append(e_max)
                     # the first cycle starts from the lead-in, on the virgin branch where the model
                     # began: its error is a transient (the figures of merit leave it out too), so
                     # learning starts from the second cycle
                     if learning_on and len(cycle_rms) > 1:
-                        if rms < best_rms:
-                            best_rms, best_corr = rms, corr.copy()  # type: ignore[union-attr]
-                            # the error of cycle m shows the correction applied in it; align by phase
-                            corr = _lowpass_periodic(corr + self.learning_gain * np.roll(e, -(c0 % p)), dt, cutoff)  # type: ignore[operator]
-                            learned = True
-                            if len(cycle_rms) > 2 and rms > 0.95 * cycle_rms[-2]:
-                                learning_on = False
-                                corr = best_corr
-                        else:  # the error stopped falling: keep the best correction
-                            learning_on = False
-                            corr = best_corr
+                        corr_prev = corr
+                        corr, learning_on = learner.update(corr, e, e_max)  # type: ignore[arg-type]
+                        # over one period of the learning's band: the blend adds nothing above it
+                        fade_start, fade_end = k + 1, k + 1 + max(2, int(math.ceil(1.0 / (learner.cutoff * dt))))
+                        learned = True
         finally:
             guard.ramp_to(limits.rest)  # leave the stage at rest (a later reset() is then no jump)
         return TrackingResult(t=np.arange(n) * dt, reference=r, output=y, command=u, period=per,
                               clipped=guard.clipped, label=label,
                               info={"mode": "step", "feedback": pid is not None, "learning": learn,
-                                    "cycle_rms_um": cycle_rms, "lead_in_samples": lead_samples,
+                                    "cycle_rms_um": cycle_rms, "cycle_e_max_um": cycle_emax,
+                                    "learning_gain": learner.gain if learn else None,
+                                    "learning_cutoff_hz": learner.cutoff if learn else None,
+                                    "learning_reverts": learner.reverts if learn else 0,
+                                    "lead_in_samples": lead_samples,
                                     "learning_stopped": learning_stopped,
                                     "safety": guard.counts()})
 
@@ -505,11 +615,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         ctl.info["feedback"] = NO_LOOP
     elif tune:
         say("tuning the integral feedback on the plant (bounded experiments)")
-        level = float(np.median(ds.y))
-        tguard = GuardedPlant(plant, limits)
-        ctl.tuning = tune_integral_safely(tguard, ctl.feedforward(), ctl.model, delay=ctl.delay, level=level,
-                                          volts_per_um=ctl.volts_per_um, options=tuning)
-        tune_counts = tguard.counts()
+        tune_counts = ctl.tune(tuning)
     ctl.time_s = time.perf_counter() - t0
     ctl.info["seed"] = seed
     ctl.info["safety"] = {"limits": limits.to_dict(), "identification": ident_counts, "tuning": tune_counts}

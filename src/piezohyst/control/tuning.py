@@ -218,6 +218,34 @@ def small_signal_responses(model: Any, dt: float, *, u_level: float, u_range: tu
     return out
 
 
+def large_signal_slope_ratio(model: Any, dt: float, *, u_range: tuple[float, float],
+                             impulse: dict[str, FloatArray]) -> float:
+    """How much steeper the model's major loop gets than at the linearisation of ``impulse``.
+
+    The integral loop's gain is ``ki * volts_per_um * slope``, and a tracking run sweeps the stage
+    along its branches, whose local slope (µm per V) varies with the command and the distance
+    from the last reversal: a gain with good margins where the loop was linearised (and probed)
+    has less where the branch is steeper. The model is run over two full-range 1 Hz cycles; on the
+    second, the slope over 2 % of the range (not a single sample: the hysteresis' and the lags'
+    large-signal slope, not noise) is taken wherever the command moves; the ratio of its largest
+    value to the steeper of the small-signal gains (the step responses' final values), at least 1.
+    """
+    lo, hi = u_range
+    n = max(int(round(1.0 / dt)), 200)
+    t = np.arange(2 * n) / n
+    u = 0.5 * (lo + hi) - 0.5 * (hi - lo) * np.cos(2 * np.pi * t)
+    y = np.asarray(model.predict(u, dt if model.dynamic else None), dtype=np.float64)[n:]
+    u = u[n:]
+    w = max(int(round(0.02 * n)), 1)
+    du, dy = u[w:] - u[:-w], y[w:] - y[:-w]
+    moving = np.abs(du) > 0.25 * np.abs(du).max()
+    steepest = float(np.max(dy[moving] / du[moving])) if moving.any() else 0.0
+    small = max(float(np.sum(h)) for h in impulse.values())
+    if not (math.isfinite(steepest) and small > 0):
+        return 1.0
+    return max(1.0, steepest / small)
+
+
 def integral_loop_response(impulse: dict[str, FloatArray], dt: float, *, delay: int, scale: float,
                            n_freqs: int = 600) -> LoopResponse:
     """``L(w)/ki`` of integral feedback at the command around the model's small-signal responses.
@@ -320,9 +348,15 @@ def tune_integral_safely(
        explain (aborted at once), and never goes past ``max_factor * ki_model`` or the model's
        ultimate gain divided by ``back_off``. The command then ramps back to rest. The loop is
        never taken near instability, and the commands stay within a few probe sizes of the hold.
-    3. ``ki`` = the largest well-damped gain / ``back_off``. When already the first gain is not
-       well damped (the model overestimates what the plant takes: an unmodelled resonance, more
-       delay), the gain is halved until it is, at most five times (else ``ki = 0``: no feedback).
+    3. ``ki`` = the largest well-damped gain / (``back_off`` * the large-signal slope ratio). The
+       experiments and the model's margins hold where the loop was linearised; a tracking run
+       sweeps the stage along branches that can be steeper (on a Preisach-like stage 2x and more
+       late on a branch), and the loop's gain grows with the slope: dividing by the ratio of the
+       steepest slope of the model's major loop to the linearised one
+       (:func:`large_signal_slope_ratio`) keeps the margins there too. When already the first gain
+       is not well damped (the model overestimates what the plant takes: an unmodelled
+       resonance, more delay), the gain is halved until it is, at most five times (else
+       ``ki = 0``: no feedback).
 
     Parameters
     ----------
@@ -349,8 +383,9 @@ def tune_integral_safely(
     # -- 1. from the model
     u_level = float(ff.command(np.full(max(int(round(0.05 / dt)), 20), level))[-1])
     u_level = min(max(u_level, lim.low), lim.high)
-    resp = integral_loop_response(small_signal_responses(model, dt, u_level=u_level, u_range=(lim.low, lim.high)),
-                                  dt, delay=delay, scale=volts_per_um)
+    impulse = small_signal_responses(model, dt, u_level=u_level, u_range=(lim.low, lim.high))
+    resp = integral_loop_response(impulse, dt, delay=delay, scale=volts_per_um)
+    slope_ratio = large_signal_slope_ratio(model, dt, u_range=(lim.low, lim.high), impulse=impulse)
     ki_model = resp.ki_for(opt.phase_margin_deg, opt.gain_margin)
     ki_u_model = resp.ultimate_ki()
     if not math.isfinite(ki_model) or ki_model <= 0:
@@ -446,11 +481,14 @@ def tune_integral_safely(
     finally:
         plant.ramp_to(lim.rest)  # back to rest, smoothly, whatever happened
 
-    ki_final = ki_ok / opt.back_off
+    ki_final = ki_ok / (opt.back_off * slope_ratio)
     margins = resp.margins(ki_final) if ki_final > 0 else {}
+    if ki_final > 0:  # the same loop where the major loop is steepest
+        margins["steepest"] = _margins(resp.freqs_hz, ki_final * slope_ratio * max(resp.loops.values(),
+                                                                                    key=lambda lp: abs(lp[0])))
     method = (f"integral gain from the model (phase margin {opt.phase_margin_deg:g} deg, gain margin "
               f"{opt.gain_margin:g}, delay {delay} + 1 samples): ki_model = {ki_model:.4g}; bounded experiments "
               f"(probe {probe:.3g} V, overshoot <= {opt.overshoot_limit:g}) well damped up to {ki_ok:.4g}; "
-              f"ki = {ki_ok:.4g} / {opt.back_off:g}")
+              f"ki = {ki_ok:.4g} / ({opt.back_off:g} * large-signal slope ratio {slope_ratio:.3g})")
     return TuningResult(kp=0.0, ki=ki_final, kd=0.0, ki_ultimate=ki_u_model, trials=tuple(trials),
                         method=method, ki_model=ki_model, margins=margins, experiments=tuple(experiments))
