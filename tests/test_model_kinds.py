@@ -10,7 +10,7 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 import piezohyst as ph
@@ -182,6 +182,9 @@ def test_unknown_kind_is_named():
 @settings(max_examples=8, deadline=None)
 @given(w1=st.floats(-0.3, 1.0), lag=st.floats(-0.4, 0.6), tau_ms=st.floats(2.0, 40.0),
        seed=st.integers(0, 10_000), freq=st.floats(0.5, 6.0))
+# found by a random (not derandomized) run: every runner-up with an input lag chattered (a flat
+# loop after reversals, inverted with the lag's lead); the rate-independent fallback is taken
+@example(w1=0.0, lag=-0.375, tau_ms=2.0, seed=135, freq=1.0)
 def test_fitted_compensators_never_chatter(w1, lag, tau_ms, seed, freq):
     """Plants whose loop is flat or falling after reversals (w1 <= 0) and with strong fast lags of
     either sign: the fitted model's compensator stays smooth for any smooth reference."""

@@ -21,7 +21,9 @@ the hold-out error by :data:`MIN_GAIN` to replace a simpler one):
 6. the winner, refitted on the whole record, must have a compensator that stays smooth: on
    sinusoids at both ends of the excitation band its command turns only where the reference
    turns (:func:`_chatters`); one that chatters (an inverse slope at the margin, amplified by an
-   input lag's lead) is passed over for the next best, and ``info["refused_for_chatter"]`` names it.
+   input lag's lead) is passed over for the next best, and ``info["refused_for_chatter"]`` names it;
+   when the first runners-up all chatter, the best rate-independent candidate (no lags: its
+   inverse is monotone between the reference's turns) is taken, checked the same way.
 
 Every range follows from the data, nothing from any particular stage (:func:`search_ranges`):
 the excitation's frequency band ``f_lo .. f_hi`` (between 1 % and 98 % of the input's power) and
@@ -343,11 +345,13 @@ def fit_model(
             # for the next best (module docstring, "inverses that never chatter")
             order = sorted((c for c in sc.tried if isinstance(c.structure, Structure) and c is not best),
                            key=lambda c: c.score)
-            for nxt in order[:CHATTER_RETRIES]:
-                if not _chatters(final.model, dt, ys, ranges):
-                    break
+            # after the runners-up, the best rate-independent candidate: with no lags to invert,
+            # its command follows the reference's turns and no others (a monotone inverse)
+            static = [c for c in order if not c.structure.taus and not c.structure.input_tau]
+            queue = order[:CHATTER_RETRIES] + [c for c in static if c not in order[:CHATTER_RETRIES]][:1]
+            while _chatters(final.model, dt, ys, ranges) and queue:
                 refused.append(best.label)
-                best = nxt
+                best = queue.pop(0)
                 final, _ = fit_structure(us, ys, dt, best.structure, margin=margin)
     else:
         final = _fit_bouc_wen(us, ys, dt, best.structure[1], seed, bouc_wen_options)  # type: ignore[arg-type]
