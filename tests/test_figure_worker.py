@@ -1,0 +1,94 @@
+"""Figures drawn by the worker process (experiments._figures) are the figures drawn in-process."""
+
+import io
+import pickle
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from piezohyst.experiments._figures import BackgroundFigures, FigureJob, render
+
+WHO = "piezohyst test; command: reproduce --out x; at 2000-01-01T00:00:00Z"
+
+
+def _jobs():
+    t = np.arange(4000) * 1e-4
+    u = 50 - 50 * np.cos(2 * np.pi * 2 * t)
+    y = 0.02 * u + 0.1 * np.sin(2 * np.pi * 2 * t)
+    return [
+        FigureJob("a", "a.png", "plot_loops", ([("2 Hz", u[-2000:], y[-2000:])],), {"title": "loops"}, note="loops"),
+        FigureJob("b", "b.png", "plot_tracking", (t, y, y + 0.001), {"command": u, "scored": slice(2000, 4000),
+                                                                     "u_range": (0.0, 100.0), "title": "run"},
+                  note="tracking"),
+    ]
+
+
+def _pixels(path):
+    with Image.open(path) as im:
+        return np.asarray(im)
+
+
+def _info(path):
+    with Image.open(path) as im:
+        return dict(im.info)
+
+
+def test_worker_draws_what_render_draws(tmp_path):
+    here = render(_jobs(), tmp_path / "here", ("png", "svg"), producer=WHO)
+    with BackgroundFigures() as bg:
+        bg.submit(_jobs(), tmp_path / "there", ("png", "svg"), producer=WHO)
+        there = bg.result()
+    assert list(here) == list(there) == ["a", "a.svg", "b", "b.svg"]
+    for key in ("a", "b"):
+        np.testing.assert_array_equal(_pixels(here[key]), _pixels(there[key]))
+        info = _info(there[key])
+        assert info["Software"] == WHO and info["Description"] == dict(a="loops", b="tracking")[key]
+        assert WHO in there[f"{key}.svg"].read_text(encoding="utf-8")
+
+
+def test_a_dead_worker_means_drawing_here(tmp_path):
+    with BackgroundFigures() as bg:
+        bg.submit(_jobs(), tmp_path, ("png",), producer=WHO)
+        bg._proc.kill()
+        bg._proc.wait()
+        paths = bg.result()
+    assert sorted(p.name for p in paths.values()) == ["a.png", "b.png"]
+    assert all(p.stat().st_size > 1000 for p in paths.values())
+
+
+def test_a_failing_job_raises_the_real_error_here(tmp_path):
+    bad = [FigureJob("x", "x.png", "no_such_plot", (), {}, note="")]
+    with BackgroundFigures() as bg:
+        bg.submit(bad, tmp_path, ("png",))
+        with pytest.raises(AttributeError, match="no_such_plot"):
+            bg.result()
+
+
+def test_warnings_of_the_worker_are_issued_here(tmp_path):
+    class FakeProc:
+        def __init__(self, reply):
+            self.stdout = io.BytesIO(pickle.dumps(reply))
+            self.stdin = io.BytesIO()
+
+        def poll(self):
+            return 0
+
+    bg = BackgroundFigures.__new__(BackgroundFigures)
+    bg._proc = FakeProc(("ok", {"a": tmp_path / "a.png"}, [("the worker saw this", UserWarning)]))
+    bg._job = None
+    bg._sent = False
+    bg.submit([], tmp_path, ("png",), producer=WHO)
+    with pytest.warns(UserWarning, match="the worker saw this"):
+        assert bg.result() == {"a": tmp_path / "a.png"}
+    bg.close(kill=True)
+
+
+def test_one_set_per_submission(tmp_path):
+    with BackgroundFigures() as bg:
+        with pytest.raises(RuntimeError):
+            bg.result()
+        bg.submit([], tmp_path, ("png",))
+        with pytest.raises(RuntimeError):
+            bg.submit([], tmp_path, ("png",))
+        assert bg.result() == {}
