@@ -397,17 +397,20 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
         bmat = pre.base[:k_rows]
         knots, centre = map_knots_for(ys, st.map_knots)
         mc, const, hi = _map_columns(ys, knots, centre)
-        rhs_extra = ys - bmat @ shift - const
-        a_b = bmat @ t
         k = mc.shape[1]
+        # A = [B T | mc], rhs = ys - B shift - const. Every product goes through the stored
+        # columns B (q of them) rather than B T (as many as the design's variables): B' [mc const]
+        # and mc' [mc ys const] are the only products over the rows, the rest is q x q algebra.
+        bc = bmat.T @ np.column_stack([mc, const])
+        mm = mc.T @ np.column_stack([mc, ys, const])
         g2 = np.empty((gram.shape[0] + k, gram.shape[0] + k))
         g2[:-k, :-k] = gram
-        cross = a_b.T @ mc
+        cross = t.T @ bc[:, :k]
         g2[:-k, -k:] = cross
         g2[-k:, :-k] = cross.T
-        g2[-k:, -k:] = mc.T @ mc
+        g2[-k:, -k:] = mm[:, :k]
         gram = g2
-        atb = np.concatenate([a_b.T @ rhs_extra, mc.T @ rhs_extra])
+        atb = np.concatenate([t.T @ (bty - gb @ shift - bc[:, k]), mm[:, k] - bc[:, :k].T @ shift - mm[:, k + 1]])
         # the map's variables go before the offset in x; keep them last here and reorder below
         lb = np.concatenate([lb, np.zeros(k)])
         ub = np.concatenate([ub, hi])
