@@ -1,13 +1,15 @@
 """Figures drawn by the worker process (experiments._figures) are the figures drawn in-process."""
 
+import dataclasses
 import io
 import pickle
+import threading
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from piezohyst.experiments._figures import BackgroundFigures, FigureJob, render
+from piezohyst._figures import BackgroundFigures, FigureJob, render
 
 WHO = "piezohyst test; command: reproduce --out x; at 2000-01-01T00:00:00Z"
 
@@ -74,14 +76,26 @@ def test_warnings_of_the_worker_are_issued_here(tmp_path):
         def poll(self):
             return 0
 
-    bg = BackgroundFigures.__new__(BackgroundFigures)
+    bg = BackgroundFigures.__new__(BackgroundFigures)  # the real class, its worker faked
+    bg._lock, bg._thread, bg._spec = threading.Lock(), None, None
     bg._proc = FakeProc(("ok", {"a": tmp_path / "a.png"}, [("the worker saw this", UserWarning)]))
-    bg._job = None
-    bg._sent = False
-    bg.submit([], tmp_path, ("png",), producer=WHO)
+    bg.STEAL_FROM = 10**9  # let the (fake) worker take the job
+    bg.submit([FigureJob("a", "a.png", "plot_loops")], tmp_path, ("png",), producer=WHO)
+    bg._thread.join()
     with pytest.warns(UserWarning, match="the worker saw this"):
         assert bg.result() == {"a": tmp_path / "a.png"}
     bg.close(kill=True)
+
+
+def test_the_caller_draws_what_the_worker_has_not_started(tmp_path):
+    jobs = [dataclasses.replace(j, key=f"{j.key}{i}", file=f"{j.key}{i}.png") for i, j in enumerate(_jobs() * 3)]
+    here = render(jobs, tmp_path / "here", ("png",), producer=WHO)
+    with BackgroundFigures() as bg:
+        bg.submit(jobs, tmp_path / "both", ("png",), producer=WHO)
+        both = bg.result()  # at once: the worker is still importing, so most are drawn here
+    assert list(both) == list(here)
+    for key in here:
+        np.testing.assert_array_equal(_pixels(here[key]), _pixels(both[key]))
 
 
 def test_one_set_per_submission(tmp_path):

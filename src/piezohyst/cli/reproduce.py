@@ -55,7 +55,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         tmp = stack.enter_context(folder) if folder is not None else None
         bg = None
         if tmp is not None:
-            from ..experiments._figures import BackgroundFigures
+            from .._figures import BackgroundFigures
 
             if BackgroundFigures.useful():
                 # the paper's figures are drawn by a second process while commissioning runs here

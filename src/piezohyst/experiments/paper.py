@@ -293,11 +293,11 @@ def figure_files(formats: Any = ("png",)) -> list[str]:
 
 
 def figure_jobs(exp: PaperExperiment) -> list[Any]:
-    """The paper's Figs. 2-4 and 6-9 of ``exp`` as :class:`~piezohyst.experiments._figures.FigureJob`
+    """The paper's Figs. 2-4 and 6-9 of ``exp`` as :class:`~piezohyst._figures.FigureJob`
     (the data each plot needs, computed here; drawing them needs only :mod:`piezohyst.plots`).
     Only the paper's part of ``exp`` is read: its loops, identification, fits and runs."""
     from ..signals import cycles_after_first, estimate_period
-    from ._figures import FigureJob
+    from .._figures import FigureJob
 
     jobs = []
     on_rig = exp.plant_description.startswith("VirtualRig")
@@ -361,7 +361,7 @@ def write_figures(exp: PaperExperiment, out: Any, *, force: bool = False, format
         ``"fig2.pdf"``, ... . Every file records what produced it in its metadata.
     """
     from ..plots import check_formats
-    from ._figures import render
+    from .._figures import render
 
     return render(figure_jobs(exp), out, check_formats(formats), force=force)
 
@@ -491,7 +491,7 @@ def write_results_into(exp: PaperExperiment, tmp: Any, out: Any, *, formats: Any
     """The files of :func:`write_results` written into ``tmp``, the temporary folder of
     :func:`results_folder` ``(out, ...)`` (entered by the caller, which publishes the set);
     ``figures``: the ``{key: path}`` of :func:`write_figures` when the figures were already drawn
-    into ``tmp`` (e.g. by a :class:`~piezohyst.experiments._figures.BackgroundFigures` worker while the
+    into ``tmp`` (e.g. by a :class:`~piezohyst._figures.BackgroundFigures` worker while the
     experiment ran). Returns the paths the files will have in ``out``."""
     from pathlib import Path
 

@@ -12,7 +12,8 @@ a second core draws the figures of a finished part of an experiment while the ca
 the rest (``piezohyst reproduce``: the paper's figures while commissioning runs). The worker is a
 fresh interpreter started with :data:`sys.executable` (not ``multiprocessing``, which would import
 the caller's main script again in the child), imports only numpy, matplotlib and
-:mod:`piezohyst.plots`, and talks over its stdin and stdout in pickles. If it fails or dies, the
+:mod:`piezohyst.plots` (this module is outside :mod:`piezohyst.experiments`, whose package imports
+the whole identification stack), and talks over its stdin and stdout in pickles. If it fails or dies, the
 figures are drawn in the caller's process instead, which then raises whatever error drawing
 really has; warnings the worker saw are issued again in the caller's process.
 """
@@ -23,7 +24,9 @@ import os
 import pickle
 import subprocess
 import sys
+import threading
 import warnings
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,7 +49,7 @@ def render(jobs: list[FigureJob], out: Any, formats: tuple[str, ...], *, force: 
     """Draw and save ``jobs`` into the folder ``out`` (created if missing) in every format of
     ``formats``; ``{key: path}`` with the first format's file under the job's key and each
     further format's under ``"key.fmt"``."""
-    from .. import plots
+    from . import plots
 
     plots.use_headless_backend()
     out = Path(out)
@@ -67,7 +70,7 @@ def _warm_up() -> None:
     caller still computes."""
     import io
 
-    from .. import plots
+    from . import plots
 
     plots.use_headless_backend()
     import matplotlib.pyplot as plt
@@ -129,19 +132,31 @@ class BackgroundFigures:
     """A worker process that draws figures while the caller goes on (module docstring).
 
     Start it early (its imports then overlap the caller's work), :meth:`submit` the jobs once
-    their data exist, take the files with :meth:`result`. Use it as a context manager: leaving
-    the block stops the worker (and kills it when the block ends with an error), so it never
-    outlives the folder it writes into.
+    their data exist, take the files with :meth:`result`. A thread hands the worker one job at a
+    time; :meth:`result` draws in the caller's process whatever the worker has not started yet
+    (when two or more are left), so the two processes finish the set together. Use it as a
+    context manager: leaving the block stops the worker (and kills it when the block ends with an
+    error), so it never outlives the folder it writes into.
     """
 
+    #: :meth:`result` draws here when at least this many jobs have not been started by the worker
+    #: (one left is about as quick to wait for as to draw after importing matplotlib here)
+    STEAL_FROM = 2
+
     def __init__(self) -> None:
-        root = str(Path(__file__).resolve().parents[2])  # the folder piezohyst is imported from
+        root = str(Path(__file__).resolve().parents[1])  # the folder piezohyst is imported from
         code = (f"import sys; sys.path.insert(0, {root!r}); "
-                "from piezohyst.experiments._figures import serve; serve()")
+                "from piezohyst._figures import serve; serve()")
         self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
             [sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-        self._job: tuple[Any, ...] | None = None
-        self._sent = False
+        self._lock = threading.Lock()
+        self._spec: tuple[Path, tuple[str, ...], bool, str] | None = None
+        self._jobs: list[FigureJob] = []
+        self._pending: deque[int] = deque()
+        self._done: dict[int, dict[str, Path]] = {}
+        self._failed: list[int] = []
+        self._warnings: list[tuple[str, Any]] = []
+        self._thread: threading.Thread | None = None
 
     @staticmethod
     def useful() -> bool:
@@ -153,43 +168,83 @@ class BackgroundFigures:
 
     def submit(self, jobs: list[FigureJob], out: Any, formats: tuple[str, ...], *, force: bool = True,
                producer: str | None = None) -> None:
-        """Send ``jobs`` to the worker (:func:`render`'s arguments); returns at once."""
-        if self._job is not None:
+        """Hand ``jobs`` (:func:`render`'s arguments) to the worker; returns at once."""
+        if self._spec is not None:
             raise RuntimeError("one set of figures per worker: take the result first")
         if producer is None:
-            from .._fileio import producer as _producer
+            from ._fileio import producer as _producer
 
             producer = _producer()
-        self._job = (list(jobs), Path(out), tuple(formats), bool(force), producer)
+        self._spec = (Path(out), tuple(formats), bool(force), producer)
+        self._jobs = list(jobs)
+        self._pending = deque(range(len(self._jobs)))
+        self._done, self._failed, self._warnings = {}, [], []
+        self._thread = threading.Thread(target=self._feed, name="piezohyst-figures", daemon=True)
+        self._thread.start()
+
+    def _take(self, at_least: int = 1) -> int | None:
+        with self._lock:
+            return self._pending.popleft() if len(self._pending) >= at_least else None
+
+    def _feed(self) -> None:
+        """The thread: one job at a time to the worker, until none is left or the worker fails."""
         proc = self._proc
-        if proc is None or proc.stdin is None:
-            return
-        try:
-            pickle.dump(self._job, proc.stdin)
-            proc.stdin.flush()
-            self._sent = True
-        except (OSError, ValueError):  # the worker is gone: result() draws here
-            self._sent = False
+        assert self._spec is not None
+        out, fmts, force, who = self._spec
+        while True:
+            i = self._take()
+            if i is None:
+                return
+            reply = None
+            if proc is not None and proc.stdin is not None and proc.stdout is not None:
+                try:
+                    pickle.dump(([self._jobs[i]], out, fmts, force, who), proc.stdin)
+                    proc.stdin.flush()
+                    reply = pickle.load(proc.stdout)
+                except Exception:  # the worker is gone
+                    reply = None
+            if reply is None:  # this job and the rest are drawn by result()
+                with self._lock:
+                    self._pending.appendleft(i)
+                return
+            self._warnings.extend(reply[2])
+            if reply[0] == "ok":
+                self._done[i] = dict(reply[1])
+            else:  # drawn again by result(), which raises the real error
+                with self._lock:
+                    self._failed.append(i)
 
     def result(self) -> dict[str, Path]:
-        """The files of the submitted jobs (drawn here if the worker could not)."""
-        if self._job is None:
+        """The files of the submitted jobs, ``{key: path}`` in the jobs' order (what the worker
+        could not draw is drawn here)."""
+        if self._spec is None or self._thread is None:
             raise RuntimeError("nothing was submitted")
-        job, self._job = self._job, None
-        reply = None
-        proc = self._proc
-        if self._sent and proc is not None and proc.stdout is not None:
-            try:
-                reply = pickle.load(proc.stdout)
-            except Exception:  # the worker died: draw here
-                reply = None
-        self._sent = False
-        if reply is not None:
-            for message, category in reply[2]:
+        out, fmts, force, who = self._spec
+        try:
+            while (i := self._take(self.STEAL_FROM)) is not None:
+                self._done[i] = render([self._jobs[i]], out, fmts, force=force, producer=who)
+            self._thread.join()
+            self._let_go()  # the worker's shutdown overlaps what the caller does next
+            for message, category in self._warnings:
                 warnings.warn(message, category, stacklevel=2)
-            if reply[0] == "ok":
-                return dict(reply[1])
-        return render(*job[:3], force=job[3], producer=job[4])
+            for i in [*self._pending, *self._failed]:
+                self._done[i] = render([self._jobs[i]], out, fmts, force=force, producer=who)
+            paths: dict[str, Path] = {}
+            for i in range(len(self._jobs)):
+                paths.update(self._done[i])
+            return paths
+        finally:
+            self._spec = None
+
+    def _let_go(self) -> None:
+        """Tell the worker to stop, without waiting for it."""
+        proc = self._proc
+        if proc is not None and proc.stdin is not None and not proc.stdin.closed:
+            try:
+                pickle.dump(None, proc.stdin)
+                proc.stdin.close()
+            except (OSError, ValueError):
+                pass
 
     def close(self, kill: bool = False) -> None:
         """Stop the worker (at once with ``kill``)."""
@@ -197,12 +252,10 @@ class BackgroundFigures:
         if proc is None:
             return
         try:
-            if not kill and proc.stdin is not None:
-                try:
-                    pickle.dump(None, proc.stdin)
-                    proc.stdin.close()
-                except (OSError, ValueError):
-                    pass
+            if not kill:
+                self._proc = proc
+                self._let_go()
+                self._proc = None
                 try:
                     proc.wait(timeout=10)
                 except subprocess.TimeoutExpired:
@@ -211,6 +264,8 @@ class BackgroundFigures:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+            if self._thread is not None:
+                self._thread.join(timeout=10)  # its pipe is closed: it returns
             for f in (proc.stdin, proc.stdout):
                 if f is not None:
                     try:
@@ -222,4 +277,4 @@ class BackgroundFigures:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        self.close(kill=exc_type is not None or self._job is not None)
+        self.close(kill=exc_type is not None or self._spec is not None)
