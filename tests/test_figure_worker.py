@@ -106,3 +106,31 @@ def test_one_set_per_submission(tmp_path):
         with pytest.raises(RuntimeError):
             bg.submit([], tmp_path, ("png",))
         assert bg.result() == {}
+
+
+def test_a_failing_run_kills_the_worker_and_leaves_nothing(tmp_path, monkeypatch):
+    from piezohyst.cli import main
+    from piezohyst.experiments import paper
+
+    started = []
+    init = BackgroundFigures.__init__
+
+    def spy(self):
+        init(self)
+        started.append(self)
+
+    def failing_run(plant, *, seed, on_step=None, on_paper_part=None):
+        paper.run_paper_experiment(plant, seed=seed, freqs=(1.0,), cycles=2, pso_bw=(4, 3), pso_pi=(4, 3),
+                                   beyond=False, on_paper_part=on_paper_part)  # the figures are submitted
+        raise RuntimeError("the rig caught fire")
+
+    monkeypatch.setattr(BackgroundFigures, "__init__", spy)
+    monkeypatch.setattr(paper, "run_paper_experiment", failing_run)
+    out = tmp_path / "results"
+    try:
+        code = main(["reproduce", "--out", str(out), "--json"])
+    except RuntimeError:
+        code = 1
+    assert code != 0
+    assert len(started) == 1 and started[0]._proc is None  # stopped
+    assert not out.exists() and list(tmp_path.iterdir()) == []  # no set, no temporary folder

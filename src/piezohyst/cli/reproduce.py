@@ -40,27 +40,31 @@ def _check_rig_for_experiment(rig, args) -> None:  # type: ignore[no-untyped-def
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from contextlib import ExitStack
 
-    from ..experiments.paper import _with_png, results_folder, write_results_into
+    from .._figures import BackgroundFigures
 
-    out = Path(args.out) if args.out else None
-    fmts = _with_png(args.format)
-    folder = results_folder(out, force=args.force, formats=fmts) if out is not None else None
-    if folder is not None:  # refuse before an expensive run, not after
-        folder.check()
-    rig = rig_from_args(args)
-    _check_rig_for_experiment(rig, args)
     written = []
     with ExitStack() as stack:
+        bg = None
+        if args.out and BackgroundFigures.useful():
+            # the paper's figures are drawn by a second process while commissioning runs here; it
+            # starts first, so that its imports (matplotlib) overlap this process's (numba, scipy).
+            # Any refusal below stops it again.
+            bg = stack.enter_context(BackgroundFigures())
+        from ..experiments.paper import _with_png, results_folder, write_results_into
+
+        out = Path(args.out) if args.out else None
+        fmts = _with_png(args.format)
+        folder = results_folder(out, force=args.force, formats=fmts) if out is not None else None
+        if folder is not None:  # refuse before an expensive run, not after
+            folder.check()
+        rig = rig_from_args(args)
+        _check_rig_for_experiment(rig, args)
         # the set is written into the folder's temporary twin and published when the block ends
         tmp = stack.enter_context(folder) if folder is not None else None
-        bg = None
-        if tmp is not None:
-            from .._figures import BackgroundFigures
-
-            if BackgroundFigures.useful():
-                # the paper's figures are drawn by a second process while commissioning runs here
-                bg = stack.enter_context(BackgroundFigures())
-        exp = _run(args, rig, None if bg is None else _submitter(bg, tmp, fmts))
+        if bg is not None:
+            # on an error the worker is killed before the temporary folder it writes into is removed
+            stack.push(lambda exc_type, exc, tb: bg.close(kill=True) if exc_type is not None else None)
+        exp = _run(args, rig, None if bg is None or tmp is None else _submitter(bg, tmp, fmts))
         if tmp is not None:
             figures = bg.result() if bg is not None else None
             written = [str(p) for p in write_results_into(exp, tmp, out, formats=fmts, figures=figures)]
