@@ -156,3 +156,22 @@ def test_output_map_normal_equations_equal_the_explicit_design(monkeypatch, knot
     scale = np.sqrt(np.outer(np.diag(a.T @ a), np.diag(a.T @ a)))
     np.testing.assert_allclose(seen["gram"] / scale, (a.T @ a) / scale, rtol=0, atol=1e-10)
     np.testing.assert_allclose(seen["atb"], a.T @ rhs, rtol=1e-9, atol=1e-9 * np.abs(a.T @ rhs).max())
+
+
+@pytest.mark.parametrize("static", ["pi", "preisach", "bouc-wen"])
+@pytest.mark.parametrize("stride", [2, 3])
+def test_strided_regressors_are_the_full_ones_subsampled(static, stride):
+    # a search keeps every stride-th row; its blocks are built at those rows only (the states
+    # still run over every sample), so they equal the full regressors' rows, bit for bit
+    from piezohyst.identify import linear as lin
+
+    rig = ph.VirtualRig(seed=2)
+    ds = rig.excite(ph.sinusoid(3.0, 2, 0.0, 100.0, rig.dt))
+    shape = (0.03, 0.01) if static == "bouc-wen" else (0.0, 0.0)
+    size = {"pi": 12, "preisach": 6, "bouc-wen": 1}[static]
+    st = lin.Structure(static, size, taus=(0.002, 0.02), input_tau=0.0005, shape=shape)
+    full = lin.prepare(ds.u, rig.dt, st)
+    cache: dict = {}
+    for _ in range(2):  # built, then from the cache
+        sub = lin.prepare(ds.u, rig.dt, st, stride=stride, cache=cache)
+        np.testing.assert_array_equal(sub.base, full.base[::stride])
