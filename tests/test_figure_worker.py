@@ -134,3 +134,16 @@ def test_a_failing_run_kills_the_worker_and_leaves_nothing(tmp_path, monkeypatch
     assert code != 0
     assert len(started) == 1 and started[0]._proc is None  # stopped
     assert not out.exists() and list(tmp_path.iterdir()) == []  # no set, no temporary folder
+
+
+def test_no_worker_process_means_drawing_here(tmp_path, monkeypatch):
+    import subprocess
+
+    def refuse(*a, **k):
+        raise OSError("no processes left")
+
+    monkeypatch.setattr(subprocess, "Popen", refuse)
+    with BackgroundFigures() as bg:
+        bg.submit(_jobs(), tmp_path, ("png",), producer=WHO)
+        paths = bg.result()
+    assert sorted(p.name for p in paths.values()) == ["a.png", "b.png"]

@@ -147,8 +147,11 @@ class BackgroundFigures:
         root = str(Path(__file__).resolve().parents[1])  # the folder piezohyst is imported from
         code = (f"import sys; sys.path.insert(0, {root!r}); "
                 "from piezohyst._figures import serve; serve()")
-        self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
-            [sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self._proc: subprocess.Popen[bytes] | None = None
+        try:
+            self._proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        except OSError:  # no worker: result() draws everything here
+            self._proc = None
         self._lock = threading.Lock()
         self._spec: tuple[Path, tuple[str, ...], bool, str] | None = None
         self._jobs: list[FigureJob] = []
@@ -160,7 +163,10 @@ class BackgroundFigures:
 
     @staticmethod
     def useful() -> bool:
-        """Whether a second process can run at the same time (more than one CPU is ours)."""
+        """Whether a second process can run at the same time (more than one CPU is ours, and an
+        interpreter to start)."""
+        if not sys.executable:
+            return False
         try:
             return len(os.sched_getaffinity(0)) > 1
         except AttributeError:  # not Linux
