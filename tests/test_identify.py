@@ -178,3 +178,57 @@ def test_fit_bouc_wen_refuses_bad_bounds():
         ph.fit_bouc_wen(u, y, 1e-3, bounds={"k": (0, 1e8)})
     with pytest.raises(ValueError, match="dt must be > 0"):
         ph.fit_bouc_wen(u, y, 0.0)
+
+
+@pytest.mark.parametrize("knots, stride, delay", [(2, 1, 0), (4, 2, 3), (8, 3, 1)])
+def test_output_map_normal_equations_equal_the_explicit_design(monkeypatch, knots, stride, delay):
+    # fit_prepared forms the asymmetric P-I model's normal equations from the stored columns B
+    # (B' [map columns, const], map columns' [map columns, y, const]); they are those of the
+    # explicit design A = [B T | map columns], rhs = y - B shift - const
+    from piezohyst.identify import linear as lin
+
+    rig = ph.VirtualRig(seed=1)
+    ds = rig.excite(ph.sinusoid(2.0, 3, 0.0, 100.0, rig.dt))
+    st = lin.Structure("pi", 10, map_knots=knots, taus=(0.01, 0.1), delay=delay)
+    pre = lin.prepare(ds.u, rig.dt, st, stride=stride)
+    rows = ds.u.size - delay
+    y = ds.y[delay:]
+    margin = 0.02 * lin.mean_slope(ds.u, ds.y)
+    seen = {}
+
+    def capture(gram, atb, lb, ub, ridge=None):
+        seen["gram"], seen["atb"] = gram, atb
+        return np.zeros(atb.size)
+
+    monkeypatch.setattr(lin, "bounded_lstsq_gram", capture)
+    with np.errstate(all="ignore"):
+        lin.fit_prepared(pre, y, rows, rig.dt, margin=margin)
+    t, shift, *_ = lin._design(pre, margin, True)
+    b = pre.base[: pre.n_rows(rows)]
+    ys = y[::stride]
+    knot_values, centre = lin.map_knots_for(ys, knots)
+    mc, const, _ = lin._map_columns(ys, knot_values, centre)
+    a = np.column_stack([b @ t, mc])
+    rhs = ys - b @ shift - const
+    scale = np.sqrt(np.outer(np.diag(a.T @ a), np.diag(a.T @ a)))
+    np.testing.assert_allclose(seen["gram"] / scale, (a.T @ a) / scale, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(seen["atb"], a.T @ rhs, rtol=1e-9, atol=1e-9 * np.abs(a.T @ rhs).max())
+
+
+@pytest.mark.parametrize("static", ["pi", "preisach", "bouc-wen"])
+@pytest.mark.parametrize("stride", [2, 3])
+def test_strided_regressors_are_the_full_ones_subsampled(static, stride):
+    # a search keeps every stride-th row; its blocks are built at those rows only (the states
+    # still run over every sample), so they equal the full regressors' rows, bit for bit
+    from piezohyst.identify import linear as lin
+
+    rig = ph.VirtualRig(seed=2)
+    ds = rig.excite(ph.sinusoid(3.0, 2, 0.0, 100.0, rig.dt))
+    shape = (0.03, 0.01) if static == "bouc-wen" else (0.0, 0.0)
+    size = {"pi": 12, "preisach": 6, "bouc-wen": 1}[static]
+    st = lin.Structure(static, size, taus=(0.002, 0.02), input_tau=0.0005, shape=shape)
+    full = lin.prepare(ds.u, rig.dt, st)
+    cache: dict = {}
+    for _ in range(2):  # built, then from the cache
+        sub = lin.prepare(ds.u, rig.dt, st, stride=stride, cache=cache)
+        np.testing.assert_array_equal(sub.base, full.base[::stride])

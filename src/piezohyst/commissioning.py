@@ -353,6 +353,19 @@ class CommissionedController:
 
     def _track_step(self, r: FloatArray, *, feedback: bool, learning: bool, period: int | None,
                     label: str) -> TrackingResult:
+        # the loop compiled where every part has a kernel (the VirtualRig, a rate-dependent P-I
+        # inverse, a PID); it gives up at the first sample where anything unusual happens, and the
+        # run is then made again from the start in Python, which handles it as it always has
+        res = self._track_step_run(r, feedback=feedback, learning=learning, period=period, label=label,
+                                   compiled=True)
+        if res is None:
+            res = self._track_step_run(r, feedback=feedback, learning=learning, period=period, label=label,
+                                       compiled=False)
+        assert res is not None  # the Python loop always ends with a result (or raises)
+        return res
+
+    def _track_step_run(self, r: FloatArray, *, feedback: bool, learning: bool, period: int | None,
+                        label: str, compiled: bool) -> TrackingResult | None:
         plant = self.plant
         dt = plant.dt
         limits = self._limits()
@@ -363,6 +376,9 @@ class CommissionedController:
         p = int(per) if per is not None else 1  # the period where learning uses it
         ff = self.feedforward()
         pid = self.tuning.pid(dt) if (feedback and self.tuning is not None) else None
+        kernel = _loop_kernel_args(plant, ff, pid) if compiled else None
+        if compiled and kernel is None:
+            return None
         d = self.delay
         corr = np.zeros(p) if learn else None
         corr_prev = corr
@@ -392,55 +408,85 @@ class CommissionedController:
         sat = 0
         learner = _Learning(p, dt, self.learning_gain, self._cutoff(per, dt),
                             self.ilc_cutoff_hz or self.MAX_CUTOFF_FRACTION / dt)
+
+        def fade(k: int) -> float:
+            """The weight of the new correction at sample k while it takes over from the old one."""
+            return 0.5 * (1.0 - math.cos(math.pi * (k - fade_start) / (fade_end - fade_start)))
+
+        def end_of_cycle(k: int) -> None:
+            """Learning after the cycle that ends at sample k."""
+            nonlocal corr, corr_prev, learning_on, learned, fade_start, fade_end
+            c0 = k + 1 - p
+            e = r[c0:k + 1] - y[c0:k + 1]
+            rms = float(np.sqrt(np.mean(e**2)))
+            e_max = float(np.max(np.abs(e)))
+            e = np.where(clipped_at[c0:k + 1], 0.0, e)
+            cycle_rms.append(rms)
+            cycle_emax.append(e_max)
+            # the first cycle starts from the lead-in, on the virgin branch where the model
+            # began: its error is a transient (the figures of merit leave it out too), so
+            # learning starts from the second cycle
+            if learning_on and len(cycle_rms) > 1:
+                corr_prev = corr
+                corr, learning_on = learner.update(corr, e, e_max)  # type: ignore[arg-type]
+                # over one period of the learning's band: the blend adds nothing above it
+                fade_start, fade_end = k + 1, k + 1 + max(2, int(math.ceil(1.0 / (learner.cutoff * dt))))
+                learned = True
+
+        def corr_for(k0: int, k1: int) -> Any:
+            """The correction as the compiled loop reads it in samples k0..k1-1 (one period at
+            most, so each phase once): the blend of a new correction written into a copy; the
+            string "python" where that cannot be (the run's last samples reuse the last phase)."""
+            if corr is None or k0 >= fade_end:
+                return corr
+            eff = corr.copy()
+            for k in range(k0, min(fade_end, k1)):
+                if k + d > n - 1:
+                    return "python"
+                i = (k + d) % p
+                eff[i] = corr_prev[i] + fade(k) * (corr[i] - corr_prev[i])  # type: ignore[index]
+            return eff
+
         try:
-            for k in range(n):
-                fb = pid.step(r[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
-                j = min(k + d, n - 1)
-                c = corr[j % p] if corr is not None else 0.0
-                if k < fade_end:  # a new correction takes over smoothly, not as a step at the switch
-                    w = 0.5 * (1.0 - math.cos(math.pi * (k - fade_start) / (fade_end - fade_start)))
-                    c = corr_prev[j % p] + w * (c - corr_prev[j % p])  # type: ignore[index]
-                target = r[j] + c
-                uk = ff.step(target) + fb
-                try:
-                    watch.command(k, uk)
-                except UnstableLoopError as exc:
-                    # a learned correction drove the loop to the amplifier's limits (a stage
-                    # whose loop is flat after reversals turns a small correction of the target
-                    # into a large one of the command): drop it, stop learning, and give the loop
-                    # one window to settle; without learning, or once more, the gains make the
-                    # loop unstable, as before
-                    if not learned or learning_stopped is not None:
-                        raise
-                    corr = np.zeros(p)
-                    fade_end = 0
-                    learning_on = False
-                    learning_stopped = exc.reason
-                    watch.n_lo = watch.n_hi = 0
-                yk = guard.step(uk)
-                sat = guard.last_saturation
-                clipped_at[k + d] = sat != 0
-                u[k] = guard.last
-                y[k] = yk
-                watch.output(k, yk, y)
-                y_prev = yk
-                if learn and (k + 1) % p == 0:
-                    c0 = k + 1 - p
-                    e = r[c0:k + 1] - y[c0:k + 1]
-                    rms = float(np.sqrt(np.mean(e**2)))
-                    e_max = float(np.max(np.abs(e)))
-                    e = np.where(clipped_at[c0:k + 1], 0.0, e)
-                    cycle_rms.append(rms)
-                    cycle_emax.append(e_max)
-                    # the first cycle starts from the lead-in, on the virgin branch where the model
-                    # began: its error is a transient (the figures of merit leave it out too), so
-                    # learning starts from the second cycle
-                    if learning_on and len(cycle_rms) > 1:
-                        corr_prev = corr
-                        corr, learning_on = learner.update(corr, e, e_max)  # type: ignore[arg-type]
-                        # over one period of the learning's band: the blend adds nothing above it
-                        fade_start, fade_end = k + 1, k + 1 + max(2, int(math.ceil(1.0 / (learner.cutoff * dt))))
-                        learned = True
+            if kernel is not None:
+                # the feedforward's state arrays as they are now (reset() replaces them)
+                if not _run_loop_compiled(_loop_kernel_args(plant, ff, pid), plant, guard, ff, pid, watch, r, y, u,
+                                          clipped_at, d, vpu, y_prev, p if learn else n, corr_for,
+                                          end_of_cycle if learn else None):
+                    return None
+            else:
+                for k in range(n):
+                    fb = pid.step(r[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
+                    j = min(k + d, n - 1)
+                    c = corr[j % p] if corr is not None else 0.0
+                    if k < fade_end:  # a new correction takes over smoothly, not as a step at the switch
+                        c = corr_prev[j % p] + fade(k) * (c - corr_prev[j % p])  # type: ignore[index]
+                    target = r[j] + c
+                    uk = ff.step(target) + fb
+                    try:
+                        watch.command(k, uk)
+                    except UnstableLoopError as exc:
+                        # a learned correction drove the loop to the amplifier's limits (a stage
+                        # whose loop is flat after reversals turns a small correction of the target
+                        # into a large one of the command): drop it, stop learning, and give the loop
+                        # one window to settle; without learning, or once more, the gains make the
+                        # loop unstable, as before
+                        if not learned or learning_stopped is not None:
+                            raise
+                        corr = np.zeros(p)
+                        fade_end = 0
+                        learning_on = False
+                        learning_stopped = exc.reason
+                        watch.n_lo = watch.n_hi = 0
+                    yk = guard.step(uk)
+                    sat = guard.last_saturation
+                    clipped_at[k + d] = sat != 0
+                    u[k] = guard.last
+                    y[k] = yk
+                    watch.output(k, yk, y)
+                    y_prev = yk
+                    if learn and (k + 1) % p == 0:
+                        end_of_cycle(k)
         finally:
             guard.ramp_to(limits.rest)  # leave the stage at rest (a later reset() is then no jump)
         return TrackingResult(t=np.arange(n) * dt, reference=r, output=y, command=u, period=per,
@@ -518,6 +564,78 @@ class CommissionedController:
         from .plant import play_checked
 
         return play_checked(self.plant, table)
+
+
+def _loop_kernel_args(plant: Any, ff: Any, pid: Any) -> tuple[Any, ...] | None:
+    """The compiled loop's view of the feedforward, when the plant, the feedforward and the
+    feedback all have kernels (exact types: a subclass may override a step)."""
+    from .control.pid import PID
+    from .models.rate import RateCompensator
+    from .rig import VirtualRig
+
+    if type(plant) is not VirtualRig or (pid is not None and type(pid) is not PID) or type(ff) is not RateCompensator:
+        return None
+    return ff._pi_kernel_args()
+
+
+def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, pid: Any, watch: LoopWatch,
+                       r: FloatArray, y: FloatArray, u: FloatArray, clipped_at: Any, d: int, vpu: float, y_prev: float,
+                       chunk: int, corr_for: Callable[[int, int], Any], end_of_chunk: Callable[[int], None] | None) -> bool:
+    """The loop of ``_track_step`` compiled (:func:`piezohyst.control.compiled_loop._guarded_loop`), in
+    chunks of ``chunk`` samples, reading the correction ``corr_for(k0, k1)`` gives for each, with
+    ``end_of_chunk(k)`` (the learning) after each whole one; the states of the guard, the plant, the feedforward and the PID are left as the Python loop leaves
+    them. False when the kernel gave up (the run must be made again in Python, from the start)."""
+    from .control.compiled_loop import COMPLETED, _guarded_loop
+
+    if ff_args is None:
+        return False
+    n = r.size
+    lo, hi = ff.u_range if ff.u_range is not None else (-math.inf, math.inf)
+    ff_lim = np.array([lo, hi, ff.max_slew if ff.max_slew is not None else math.inf])
+    last = ff._u_last
+    ff_lim_state = np.array([0.0 if last is None else 1.0, 0.0 if last is None else last, float(ff.limited)])
+    if pid is not None:
+        pid_g = np.array([pid.kp, pid.ki, pid.dt, pid._a, pid._b, pid.u_min, pid.u_max])
+        pid_state = np.array([pid.integral, pid._d, pid._e_prev, 1.0 if pid._first else 0.0])
+    else:
+        pid_g, pid_state = np.zeros(7), np.zeros(4)
+    lim = guard.limits
+    g = np.array([lim.low, lim.high, lim.max_step, guard._tol])
+    g_state = np.array([guard.last, guard.clipped, guard.slew_limited, guard.largest_step, guard.last_saturation,
+                        guard.sent], dtype=np.float64)
+    wv = np.array([watch.lo_u, watch.hi_u, watch.limit, watch.span, watch.settle, watch.WINDOW, watch.CHATTER],
+                  dtype=np.float64)
+    w_state = np.array([watch.n_lo, watch.n_hi], dtype=np.float64)
+    loop_state = np.array([y_prev, 0.0])
+    rr = np.ascontiguousarray(r, dtype=np.float64)
+    for k0 in range(0, n, chunk):
+        k1 = min(k0 + chunk, n)
+        corr = corr_for(k0, k1)
+        if isinstance(corr, str):  # a blend the kernel cannot read as one array: Python from the start
+            return False
+        has_corr = corr is not None
+        noise = plant._rng.standard_normal(k1 - k0)
+        args = (k0, k1, rr, y, u, clipped_at, corr if has_corr else np.zeros(1), has_corr, d, vpu,
+                plant._p, plant._kv_a, plant._kv_g, plant._amp_a, plant._st, plant._line, plant._consts, noise,
+                *ff_args, ff_lim, ff_lim_state, pid is not None, pid_g, pid_state, g, g_state, wv,
+                bool(watch.watch_chatter), bool(watch.watch_window), w_state, loop_state)
+        k = _guarded_loop(*args)
+        plant._n += k1 - k0
+        if k != COMPLETED:
+            return False
+        if end_of_chunk is not None and k1 - k0 == chunk:
+            end_of_chunk(k1 - 1)
+    # the objects' states as the Python loop leaves them
+    guard.last, guard.largest_step = float(g_state[0]), float(g_state[3])
+    guard.clipped, guard.slew_limited = int(g_state[1]), int(g_state[2])
+    guard.last_saturation, guard.sent = int(g_state[4]), int(g_state[5])
+    watch.n_lo, watch.n_hi = int(w_state[0]), int(w_state[1])
+    ff._u_last = float(ff_lim_state[1]) if ff_lim_state[0] != 0.0 else None
+    ff.limited = int(ff_lim_state[2])
+    if pid is not None:
+        pid.integral, pid._d, pid._e_prev = (float(v) for v in pid_state[:3])
+        pid._first = bool(pid_state[3] != 0.0)
+    return True
 
 
 def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None = None, n: int | None = None,

@@ -416,11 +416,13 @@ def check_formats(formats: Any) -> tuple[str, ...]:
     return tuple(dict.fromkeys(items))
 
 
-def _metadata(fmt: str, note: str | None) -> dict[str, Any]:
-    """What produced the file, in the keys each format has for it."""
-    from ._fileio import producer
+def _metadata(fmt: str, note: str | None, who: str | None = None) -> dict[str, Any]:
+    """What produced the file, in the keys each format has for it (``who``: default
+    :func:`~piezohyst._fileio.producer`, this process's package, command and time)."""
+    if who is None:
+        from ._fileio import producer
 
-    who = producer()
+        who = producer()
     if fmt == "png":
         return {"Software": who, **({"Description": note} if note else {})}
     if fmt == "pdf":
@@ -429,11 +431,13 @@ def _metadata(fmt: str, note: str | None) -> dict[str, Any]:
 
 
 def save(fig_or_ax: Any, path: str | os.PathLike[str], *, force: bool = True, note: str | None = None,
-         close: bool = True) -> Path:
+         close: bool = True, producer: str | None = None) -> Path:
     """Save a figure atomically as PNG, PDF or SVG (from the file's suffix), with what produced it
     (package, version, command, time) and ``note`` in the file's metadata.
 
-    Returns the path; the figure is closed unless ``close=False``.
+    ``producer`` replaces that first line (a worker process drawing a figure for a command it
+    did not run passes the command's own). Returns the path; the figure is closed unless
+    ``close=False``.
     """
     from ._fileio import atomic_write
 
@@ -443,7 +447,7 @@ def save(fig_or_ax: Any, path: str | os.PathLike[str], *, force: bool = True, no
     if fmt not in FORMATS:
         raise ValueError(f"{p}: cannot tell the figure format from the suffix {p.suffix!r}; "
                          f"use one of {', '.join('.' + f for f in FORMATS)}")
-    meta = _metadata(fmt, note)
+    meta = _metadata(fmt, note, producer)
 
     def write(tmp: Path) -> None:
         fig.savefig(tmp, format=fmt, dpi=_DPI, metadata=meta)
@@ -457,16 +461,18 @@ def save(fig_or_ax: Any, path: str | os.PathLike[str], *, force: bool = True, no
 
 
 def save_formats(fig_or_ax: Any, path: str | os.PathLike[str], formats: Any = ("png",), *,
-                 force: bool = True, note: str | None = None) -> list[Path]:
+                 force: bool = True, note: str | None = None, producer: str | None = None) -> list[Path]:
     """Save one figure in several formats: ``path`` with each format's suffix (``fig2.png``,
-    ``fig2.pdf``, ...). ``formats`` as in :func:`check_formats`. Closes the figure."""
+    ``fig2.pdf``, ...). ``formats`` and ``producer`` as in :func:`check_formats` and :func:`save`.
+    Closes the figure."""
     fmts = check_formats(formats)
     base = Path(path)
     if base.suffix.lower().lstrip(".") in FORMATS:
         base = base.with_suffix("")
     fig = fig_or_ax if hasattr(fig_or_ax, "savefig") else fig_or_ax.figure
     try:
-        return [save(fig, base.with_name(f"{base.name}.{f}"), force=force, note=note, close=False) for f in fmts]
+        return [save(fig, base.with_name(f"{base.name}.{f}"), force=force, note=note, close=False,
+                     producer=producer) for f in fmts]
     finally:
         import matplotlib.pyplot as plt
 

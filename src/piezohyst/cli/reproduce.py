@@ -38,35 +38,68 @@ def _check_rig_for_experiment(rig, args) -> None:  # type: ignore[no-untyped-def
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from ..experiments.paper import results_folder, run_paper_experiment, write_results
+    from contextlib import ExitStack
 
-    out = Path(args.out) if args.out else None
-    if out is not None:  # refuse before an expensive run, not after
-        results_folder(out, force=args.force, formats=args.format).check()
-    rig = rig_from_args(args)
-    _check_rig_for_experiment(rig, args)
-    if args.json:
-        exp = run_paper_experiment(rig, seed=args.seed)
-    else:
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from .._figures import BackgroundFigures
 
-        total = 3 + 1 + 2 + 2 + 3 * 4 + 1 + 3
-        with Progress(TextColumn("{task.description:<55}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                      TimeElapsedColumn(), console=console(stderr=True), transient=True) as bar:
-            task = bar.add_task("starting", total=total)
-
-            def on_step(desc: str) -> None:
-                bar.update(task, description=desc, advance=1)
-
-            exp = run_paper_experiment(rig, seed=args.seed, on_step=on_step)
     written = []
-    if out is not None:
-        written = [str(p) for p in write_results(exp, out, force=args.force, formats=args.format)]
+    with ExitStack() as stack:
+        bg = None
+        if args.out and BackgroundFigures.useful():
+            # the paper's figures are drawn by a second process while commissioning runs here; it
+            # starts first, so that its imports (matplotlib) overlap this process's (numba, scipy).
+            # Any refusal below stops it again.
+            bg = stack.enter_context(BackgroundFigures())
+        from ..experiments.paper import _with_png, results_folder, write_results_into
+
+        out = Path(args.out) if args.out else None
+        fmts = _with_png(args.format)
+        folder = results_folder(out, force=args.force, formats=fmts) if out is not None else None
+        if folder is not None:  # refuse before an expensive run, not after
+            folder.check()
+        rig = rig_from_args(args)
+        _check_rig_for_experiment(rig, args)
+        # the set is written into the folder's temporary twin and published when the block ends
+        tmp = stack.enter_context(folder) if folder is not None else None
+        if bg is not None:
+            # on an error the worker is killed before the temporary folder it writes into is removed
+            stack.push(lambda exc_type, exc, tb: bg.close(kill=True) if exc_type is not None else None)
+        exp = _run(args, rig, None if bg is None or tmp is None else _submitter(bg, tmp, fmts))
+        if tmp is not None:
+            figures = bg.result() if bg is not None else None
+            written = [str(p) for p in write_results_into(exp, tmp, out, formats=fmts, figures=figures)]
     if args.json:
         print_json({**exp.to_dict(), "written": written})
         return 0
     _print_tables(exp, written)
     return 0
+
+
+def _submitter(bg, tmp, fmts):  # type: ignore[no-untyped-def]
+    """The hook that hands the paper's part of the experiment to the figure worker."""
+    def submit(part) -> None:  # type: ignore[no-untyped-def]
+        from ..experiments.paper import figure_jobs
+
+        bg.submit(figure_jobs(part), tmp, fmts)
+    return submit
+
+
+def _run(args, rig, hook):  # type: ignore[no-untyped-def]
+    from ..experiments.paper import run_paper_experiment
+
+    if args.json:
+        return run_paper_experiment(rig, seed=args.seed, on_paper_part=hook)
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    total = 3 + 1 + 2 + 2 + 3 * 4 + 1 + 3
+    with Progress(TextColumn("{task.description:<55}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                  TimeElapsedColumn(), console=console(stderr=True), transient=True) as bar:
+        task = bar.add_task("starting", total=total)
+
+        def on_step(desc: str) -> None:
+            bar.update(task, description=desc, advance=1)
+
+        return run_paper_experiment(rig, seed=args.seed, on_step=on_step, on_paper_part=hook)
 
 
 def _print_tables(exp, written) -> None:  # type: ignore[no-untyped-def]

@@ -36,6 +36,7 @@ from .._validation import FloatArray
 from ..models.bouc_wen_inverse import BoucWenFeedforward, bw_ff_step
 from ..models.pi import InversePIFeedforward
 from ..models.play import pi_step
+from ..models.rate import _rate_pi_inverse_step
 from ..rig import VirtualRig, _rig_step
 from .pid import PID
 
@@ -208,3 +209,122 @@ def run_compiled(plant: Any, r: FloatArray, feedforward: Any, feedback: Any, *, 
         feedback.integral, feedback._d, feedback._e_prev = (float(v) for v in pid_state[:3])
         feedback._first = bool(pid_state[3] != 0.0)
     return y, u
+
+
+# -- the commissioned controller's loop ----------------------------------------------------------
+@njit
+def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray, clipped_at: Any,
+                  corr: FloatArray, has_corr: bool, d: int, vpu: float,
+                  # the rig and its noise for samples k0..k1-1
+                  p: FloatArray, kv_a: FloatArray, kv_g: FloatArray, amp_a: float, st: FloatArray,
+                  line: FloatArray, consts: FloatArray, noise: FloatArray,
+                  # the rate-dependent P-I inverse (RateCompensator._pi_kernel_args) and the
+                  # compensator's limits [u_lo, u_hi, max_slew] and their state [has_last, u_last, limited]
+                  ff_r: FloatArray, ff_w: FloatArray, ff_z: FloatArray, ff_in: float, ff_out: float,
+                  ff_a: FloatArray, ff_c: FloatArray, ff_s: FloatArray, ff_b: float, ff_vprev: FloatArray,
+                  ff_lim: FloatArray, ff_lim_state: FloatArray,
+                  # the PID (as in _closed_loop)
+                  fb_on: bool, pid_g: FloatArray, pid_state: FloatArray,
+                  # GuardedPlant: [low, high, max_step, tol], state [last, clipped, slew_limited,
+                  # largest_step, last_saturation, sent]
+                  guard: FloatArray, guard_state: FloatArray,
+                  # LoopWatch (as in _closed_loop), its chatter counts [n_lo, n_hi]
+                  watch: FloatArray, watch_chatter: bool, watch_window: bool, watch_state: FloatArray,
+                  # [y_prev, sat] carried from one call to the next
+                  loop_state: FloatArray) -> int:  # pragma: no cover
+    """Samples ``k0..k1-1`` of the loop of :meth:`CommissionedController._track_step
+    <piezohyst.commissioning.CommissionedController._track_step>`: integral feedback on the command,
+    the rate-dependent P-I inverse fed ``d`` samples ahead (plus the learned correction), the
+    safe layer, the rig, the checks of LoopWatch. The sample where it gave up (anything a check
+    or a step would raise on), or :data:`COMPLETED`."""
+    n = r.shape[0]
+    p_len = corr.shape[0]
+    lo_u, hi_u, limit, span = watch[0], watch[1], watch[2], watch[3]
+    settle, w, chatter = int(watch[4]), int(watch[5]), int(watch[6])
+    g_lo, g_hi, g_step, g_tol = guard[0], guard[1], guard[2], guard[3]
+    y_prev = loop_state[0]
+    sat = int(loop_state[1])
+    for k in range(k0, k1):
+        # -- PID.step(r[k - 1] - y_prev, sat) * volts_per_um
+        fb = 0.0
+        if fb_on and k > 0:
+            e = r[k - 1] - y_prev
+            if not math.isfinite(e):
+                return k
+            if pid_state[3] != 0.0:
+                pid_state[2] = e
+                pid_state[3] = 0.0
+            pid_state[1] = pid_g[3] * pid_state[1] + pid_g[4] * (e - pid_state[2])
+            pid_state[2] = e
+            inc = pid_g[1] * pid_g[2] * e
+            u_try = pid_g[0] * e + pid_state[0] + inc + pid_state[1]
+            if inc > 0:
+                blocked = u_try > pid_g[6] or sat > 0
+            else:
+                blocked = u_try < pid_g[5] or sat < 0
+            if not blocked:
+                pid_state[0] += inc
+            out = pid_g[0] * e + pid_state[0] + pid_state[1]
+            fb = min(max(out, pid_g[5]), pid_g[6]) * vpu
+        # -- the feedforward, d samples ahead (Compensator.step: the inverse, then its limits)
+        j = min(k + d, n - 1)
+        target = r[j] + (corr[j % p_len] if has_corr else 0.0)
+        if not math.isfinite(target):
+            return k
+        raw = _rate_pi_inverse_step(target, ff_r, ff_w, ff_z, ff_in, ff_out, ff_a, ff_c, ff_s, ff_b, ff_vprev)
+        if math.isnan(raw):
+            return k
+        v = raw
+        if ff_lim_state[0] != 0.0 and ff_lim[2] < math.inf:
+            v = min(max(v, ff_lim_state[1] - ff_lim[2]), ff_lim_state[1] + ff_lim[2])
+        v = min(max(v, ff_lim[0]), ff_lim[1])
+        if v != raw:
+            ff_lim_state[2] += 1.0
+        ff_lim_state[0] = 1.0
+        ff_lim_state[1] = v
+        uk = v + fb
+        # -- LoopWatch.command
+        if not math.isfinite(uk):
+            return k
+        if watch_chatter:
+            if uk > hi_u:
+                watch_state[1] += 1.0
+            elif uk < lo_u:
+                watch_state[0] += 1.0
+            if k % chatter == chatter - 1:
+                if watch_state[1] >= 10 and watch_state[0] >= 10:
+                    return k
+                watch_state[0] = 0.0
+                watch_state[1] = 0.0
+        # -- GuardedPlant._guard
+        sat = 1 if uk > g_hi else (-1 if uk < g_lo else 0)
+        gv = min(max(uk, g_lo), g_hi)
+        last = guard_state[0]
+        if abs(gv - uk) > g_tol:
+            guard_state[1] += 1.0
+        if abs(gv - last) > g_step:
+            gv = min(max(gv, last - g_step), last + g_step)
+            guard_state[2] += 1.0
+        guard_state[4] = sat
+        guard_state[3] = max(guard_state[3], abs(gv - last))
+        guard_state[0] = gv
+        guard_state[5] += 1.0
+        # -- the rig
+        yk = _rig_step(p, kv_a, kv_g, amp_a, st, line, consts, gv, noise[k - k0])
+        clipped_at[k + d] = sat != 0
+        u[k] = gv
+        y[k] = yk
+        # -- LoopWatch.output (the window's RMS with a hair of margin, as in _closed_loop)
+        if not math.isfinite(yk) or abs(yk - r[k]) > limit:
+            return k
+        if watch_window and k >= settle and k % w == w - 1:
+            acc = 0.0
+            for i in range(k - w + 1, k + 1):
+                dd = y[i] - r[i]
+                acc += dd * dd
+            if math.sqrt(acc / w) > span * (1.0 - 1e-9):
+                return k
+        y_prev = yk
+        loop_state[0] = y_prev
+        loop_state[1] = sat
+    return COMPLETED

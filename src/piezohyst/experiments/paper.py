@@ -179,6 +179,7 @@ def run_paper_experiment(
     reference_range: tuple[float, float] = (0.25, 2.25), u_range: tuple[float, float] = (0.0, 100.0),
     pso_bw: tuple[int, int] = (40, 200), pso_pi: tuple[int, int] = (100, 3000),
     on_step: Callable[[str], None] | None = None, beyond: bool = True,
+    on_paper_part: Callable[[PaperExperiment], None] | None = None,
 ) -> PaperExperiment:
     """Run the paper's experiment (module docstring) and return everything it measured.
 
@@ -191,6 +192,10 @@ def run_paper_experiment(
         Seeds the rig's noise and both PSO runs: the same seed gives the same tables.
     on_step : callable, optional
         Called with a short description before each stage (progress reporting).
+    on_paper_part : callable, optional
+        Called, before the part beyond the paper, with the experiment as measured so far (the
+        paper's part: loops, identification, tuning, runs; no ablation): what the paper's figures
+        need, e.g. to draw them in another process while the rest runs (``piezohyst reproduce``).
     """
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -237,6 +242,17 @@ def run_paper_experiment(
                 runs[(m, f, fb)] = track(plant, ref, ff, pid, period=period,
                                          label=f"{f:g} Hz, {m} {'feedforward + feedback' if fb else 'feedforward'}")
     timings["tracking_s"] = time.perf_counter() - t0
+
+    def result(ablation: dict[str, dict[float, TrackingResult]], ctl: Any) -> PaperExperiment:
+        return PaperExperiment(
+            seed=seed, plant_description=repr(plant), freqs=tuple(freqs), reference_range=(low, high),
+            loops=loops, identification_data=ident, bw_fit=bw_fit, pi_fit=pi_fit, pi_lsq_rmse=pi_lsq.rmse,
+            tuning=tuning, runs=runs, time_s=time.perf_counter() - t_start, timings=dict(timings),
+            ablation=ablation, commissioned=ctl,
+        )
+
+    if on_paper_part is not None:
+        on_paper_part(result({}, None))
     ablation: dict[str, dict[float, TrackingResult]] = {}
     ctl = None
     if beyond:
@@ -256,12 +272,7 @@ def run_paper_experiment(
             ablation.setdefault("rate_pi_ff_fb", {})[f] = ctl.track(ref, learning=False, period=period)
             ablation.setdefault("rate_pi_ff_fb_ilc", {})[f] = ctl.track(ref, period=period)
         timings["beyond_s"] = time.perf_counter() - t0
-    return PaperExperiment(
-        seed=seed, plant_description=repr(plant), freqs=tuple(freqs), reference_range=(low, high),
-        loops=loops, identification_data=ident, bw_fit=bw_fit, pi_fit=pi_fit, pi_lsq_rmse=pi_lsq.rmse,
-        tuning=tuning, runs=runs, time_s=time.perf_counter() - t_start, timings=timings,
-        ablation=ablation, commissioned=ctl,
-    )
+    return result(ablation, ctl)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -279,6 +290,53 @@ def figure_files(formats: Any = ("png",)) -> list[str]:
 
     fmts = check_formats(formats)
     return [name.rsplit(".", 1)[0] + "." + f for name in FIGURES.values() for f in fmts]
+
+
+def figure_jobs(exp: PaperExperiment) -> list[Any]:
+    """The paper's Figs. 2-4 and 6-9 of ``exp`` as :class:`~piezohyst._figures.FigureJob`
+    (the data each plot needs, computed here; drawing them needs only :mod:`piezohyst.plots`).
+    Only the paper's part of ``exp`` is read: its loops, identification, fits and runs."""
+    from ..signals import cycles_after_first, estimate_period
+    from .._figures import FigureJob
+
+    jobs = []
+    on_rig = exp.plant_description.startswith("VirtualRig")
+    where = "the virtual rig" if on_rig else "the plant"
+    data_label = "measured (virtual rig)" if on_rig else "measured"
+    rig = exp.identification_data.meta.get("rig") or {}
+    u_range = (rig["u_min"], rig["u_max"]) if "u_min" in rig and "u_max" in rig else None
+
+    def job(key: str, plot: str, args: tuple[Any, ...], kwargs: dict[str, Any], title: str) -> None:
+        jobs.append(FigureJob(key, FIGURES[key], plot, args, kwargs, note=f"{title}; {exp.plant_description}"))
+
+    period = {f: int(round(1 / (f * exp.identification_data.dt))) for f in exp.freqs}
+    runs = [(f"{f:g} Hz", ds.u[-period[f]:], ds.y[-period[f]:]) for f, (ds, _) in exp.loops.items()]
+    title = f"Fig. 2 - open-loop hysteresis of {where}: the last cycle at each frequency"
+    job("fig2", "plot_loops", (runs,), {"title": title}, title)
+    ident = exp.identification_data
+    p1 = int(round(1 / ident.dt))
+    sl = slice(ident.u.size - p1, ident.u.size)
+    t_last = ident.t[sl]
+    for key, fit, name, num in (("fig3", exp.bw_fit, "Bouc-Wen", 3), ("fig4", exp.pi_fit, "P-I", 4)):
+        y_model = fit.predict(ident.u, ident.dt)
+        title = (f"Fig. {num} - identified {name} model against the 1 Hz record, last cycle "
+                 f"(fit RMSE {fit.rmse * 1e3:.1f} nm on the whole record)")
+        job(key, "plot_fit", (ident.u[sl], ident.y[sl], y_model[sl]),
+            {"t": t_last, "model_name": f"identified {name}", "data_label": data_label, "title": title}, title)
+    f1 = min(exp.freqs, key=lambda f: abs(f - 1.0))
+    for key, (m, fb, name) in {"fig6": ("bouc-wen", False, "stand-alone Bouc-Wen feedforward"),
+                               "fig7": ("bouc-wen", True, "Bouc-Wen feedforward + PID"),
+                               "fig8": ("pi", False, "stand-alone inverse P-I feedforward"),
+                               "fig9": ("pi", True, "inverse P-I feedforward + PID")}.items():
+        run = exp.runs[(m, f1, fb)]
+        title = (f"Fig. {key[3:]} - {f1:g} Hz tracking, {name}: e_max {run.e_max * 1e3:.1f} nm "
+                 f"({run.e_max_percent:.1f} %), RMSE {run.rmse * 1e3:.1f} nm over the cycles after the first")
+        # what TrackingResult.plot draws
+        per = run.period if run.period is not None else estimate_period(run.reference)
+        job(key, "plot_tracking", (run.t, run.reference, run.output),
+            {"command": run.command, "scored": cycles_after_first(run.reference.size, per), "u_range": u_range,
+             "title": title}, title)
+    return jobs
 
 
 def write_figures(exp: PaperExperiment, out: Any, *, force: bool = False, formats: Any = ("png",)) -> dict[str, Any]:
@@ -302,52 +360,10 @@ def write_figures(exp: PaperExperiment, out: Any, *, force: bool = False, format
         :data:`FIGURES` with that format's suffix), and each further format under
         ``"fig2.pdf"``, ... . Every file records what produced it in its metadata.
     """
-    from pathlib import Path
+    from ..plots import check_formats
+    from .._figures import render
 
-    from .. import plots
-
-    fmts = plots.check_formats(formats)
-    out = Path(out)
-    plots.use_headless_backend()
-    paths: dict[str, Any] = {}
-    on_rig = exp.plant_description.startswith("VirtualRig")
-    where = "the virtual rig" if on_rig else "the plant"
-    data_label = "measured (virtual rig)" if on_rig else "measured"
-    rig = exp.identification_data.meta.get("rig") or {}
-    u_range = (rig["u_min"], rig["u_max"]) if "u_min" in rig and "u_max" in rig else None
-
-    def save(key: str, fig: Any, note: str) -> None:
-        files = plots.save_formats(fig, out / FIGURES[key], fmts, force=force, note=f"{note}; {exp.plant_description}")
-        paths[key] = files[0]
-        for f, pth in zip(fmts[1:], files[1:]):
-            paths[f"{key}.{f}"] = pth
-
-    period = {f: int(round(1 / (f * exp.identification_data.dt))) for f in exp.freqs}
-    runs = [(f"{f:g} Hz", ds.u[-period[f]:], ds.y[-period[f]:]) for f, (ds, _) in exp.loops.items()]
-    title = f"Fig. 2 - open-loop hysteresis of {where}: the last cycle at each frequency"
-    lines = plots.plot_loops(runs, title=title)
-    save("fig2", lines[0].axes.figure, title)
-    ident = exp.identification_data
-    p1 = int(round(1 / ident.dt))
-    sl = slice(ident.u.size - p1, ident.u.size)
-    t_last = ident.t[sl]
-    for key, fit, name, num in (("fig3", exp.bw_fit, "Bouc-Wen", 3), ("fig4", exp.pi_fit, "P-I", 4)):
-        y_model = fit.predict(ident.u, ident.dt)
-        title = (f"Fig. {num} - identified {name} model against the 1 Hz record, last cycle "
-                 f"(fit RMSE {fit.rmse * 1e3:.1f} nm on the whole record)")
-        a = plots.plot_fit(ident.u[sl], ident.y[sl], y_model[sl], t=t_last, model_name=f"identified {name}",
-                           data_label=data_label, title=title)
-        save(key, a[0].axes.figure, title)
-    f1 = min(exp.freqs, key=lambda f: abs(f - 1.0))
-    for key, (m, fb, name) in {"fig6": ("bouc-wen", False, "stand-alone Bouc-Wen feedforward"),
-                               "fig7": ("bouc-wen", True, "Bouc-Wen feedforward + PID"),
-                               "fig8": ("pi", False, "stand-alone inverse P-I feedforward"),
-                               "fig9": ("pi", True, "inverse P-I feedforward + PID")}.items():
-        run = exp.runs[(m, f1, fb)]
-        title = (f"Fig. {key[3:]} - {f1:g} Hz tracking, {name}: e_max {run.e_max * 1e3:.1f} nm "
-                 f"({run.e_max_percent:.1f} %), RMSE {run.rmse * 1e3:.1f} nm over the cycles after the first")
-        save(key, run.plot(title=title, u_range=u_range), title)
-    return paths
+    return render(figure_jobs(exp), out, check_formats(formats), force=force)
 
 
 def _fmt(v: Any, spec: str) -> str:
@@ -465,16 +481,27 @@ def write_results(exp: PaperExperiment, out: Any, *, force: bool = False, format
 
     Returns the paths written (in the final folder).
     """
+    fmts = _with_png(formats)
+    with results_folder(out, force=force, formats=fmts) as tmp:
+        return write_results_into(exp, tmp, out, formats=fmts)
+
+
+def write_results_into(exp: PaperExperiment, tmp: Any, out: Any, *, formats: Any = ("png",),
+                       figures: dict[str, Any] | None = None) -> list[Any]:
+    """The files of :func:`write_results` written into ``tmp``, the temporary folder of
+    :func:`results_folder` ``(out, ...)`` (entered by the caller, which publishes the set);
+    ``figures``: the ``{key: path}`` of :func:`write_figures` when the figures were already drawn
+    into ``tmp`` (e.g. by a :class:`~piezohyst._figures.BackgroundFigures` worker while the
+    experiment ran). Returns the paths the files will have in ``out``."""
     from pathlib import Path
 
     from .._fileio import atomic_write_text, dumps_strict, producer
 
     fmts = _with_png(formats)
-    folder = results_folder(out, force=force, formats=fmts)
-    with folder as tmp:
-        paths = write_figures(exp, tmp, force=True, formats=fmts)
-        atomic_write_text(tmp / "report.md", report_markdown(exp), force=True)
-        doc = {"producer": producer(), **exp.to_dict()}
-        atomic_write_text(tmp / "results.json", dumps_strict(doc, indent=2) + "\n", force=True)
+    tmp = Path(tmp)
+    paths = figures if figures is not None else write_figures(exp, tmp, force=True, formats=fmts)
+    atomic_write_text(tmp / "report.md", report_markdown(exp), force=True)
+    doc = {"producer": producer(), **exp.to_dict()}
+    atomic_write_text(tmp / "results.json", dumps_strict(doc, indent=2) + "\n", force=True)
     final = Path(out)
     return [final / Path(p).name for p in paths.values()] + [final / "report.md", final / "results.json"]

@@ -209,47 +209,52 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
         v_ref_all = first_order_lag(ref, b) if b else np.asarray(ref, dtype=np.float64)
         memo[key_v] = (v_all, v_ref_all)
     v, v_ref = memo[key_v]
-    key_s = ("static", st.static, st.size, st.thresholds, st.u_max, st.shape, st.input_tau, ref.size)
+    # the blocks are kept at the stored rows only (the states behind them run over every sample)
+    key_s = ("static", st.static, st.size, st.thresholds, st.u_max, st.shape, st.input_tau, ref.size, stride)
     if key_s in memo:
         static_cols, floor, info = memo[key_s]
     else:
-        static_cols, floor, info = _static_columns(v, v_ref, st)
+        static_cols, floor, info = _static_columns(v, v_ref, st, stride)
         memo[key_s] = (static_cols, floor, info)
     a_lag = np.exp(-float(dt or 0.0) / np.asarray(st.taus, dtype=np.float64)) if st.taus else np.zeros(0)
     p, m = static_cols.shape[1], a_lag.size
     rows = slice(None, None, stride)
     base = np.empty((-(-u.size // stride), p + m + 2))
-    base[:, :p] = static_cols[rows]
-    base[:, p] = floor[rows]
+    base[:, :p] = static_cols
+    base[:, p] = floor
     for i, al in enumerate(a_lag):
-        key_l = ("lag", st.input_tau, float(al), ref.size)
+        key_l = ("lag", st.input_tau, float(al), ref.size, stride)
         if key_l not in memo:
-            memo[key_l] = first_order_lag(v, float(al))
-        base[:, p + 1 + i] = memo[key_l][rows]
+            memo[key_l] = first_order_lag(v, float(al))[rows]
+        base[:, p + 1 + i] = memo[key_l]
     base[:, -1] = 1.0
     return Prepared(st, v, base, p, m, a_lag, info, stride)
 
 
-def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure) -> tuple[FloatArray, FloatArray, dict[str, Any]]:
-    """The static part's free columns, its floor column and what decoding needs."""
+def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure,
+                    stride: int = 1) -> tuple[FloatArray, FloatArray, dict[str, Any]]:
+    """The static part's free columns, its floor column and what decoding needs, at the samples
+    ``0, stride, 2 stride, ...`` (the operators' states are computed at every sample)."""
     info: dict[str, Any] = {}
+    rows = slice(None, None, stride)
     if st.static == "pi":
         if st.thresholds == "eq4":
             r = equal_thresholds(st.size, st.u_max if st.u_max else float(np.abs(v_ref).max()))
         else:
             half_span = 0.5 * float(np.ptp(v_ref))
             r = np.arange(st.size, dtype=np.float64) / st.size * half_span
-        z = play_outputs(np.ascontiguousarray(v), r, np.zeros(r.size))
+        z = play_outputs(np.ascontiguousarray(v), r, np.zeros(r.size))[rows]
         zd = z.copy()
         zd[:, :-1] -= z[:, 1:]  # y = sum_j S_j (z_j - z_{j+1}): the partial sums' columns
         static_cols, floor = zd, zd.sum(axis=1)  # sum of the columns = z_1 = v (r_1 = 0)
         info["thresholds"] = r
     elif st.static == "bouc-wen":
         beta, gamma = st.shape
-        h1 = unit_hysteresis(v, beta, gamma)
+        h1 = unit_hysteresis(v, beta, gamma)[rows]
         mslope = max_unit_slope(beta, gamma)
-        static_cols = (mslope * v - h1)[:, None]  # coefficient alpha d1 >= 0; slope floor on v
-        floor = np.array(v, dtype=np.float64)
+        vs = v[rows]
+        static_cols = (mslope * vs - h1)[:, None]  # coefficient alpha d1 >= 0; slope floor on v
+        floor = np.array(vs, dtype=np.float64)
         info["max_unit_slope"] = mslope
     else:
         lo, hi = float(v_ref.min()), float(v_ref.max())
@@ -257,8 +262,8 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure) -> tuple[Fl
         lo, hi = lo - pad, hi + pad
         a, bb, d = grid_thresholds(lo, hi, st.size)
         z0 = demagnetised_state(a, bb, d, 0.0)
-        static_cols = preisach_outputs(np.ascontiguousarray(v), a, bb, 1.0 / d, z0)
-        floor = np.array(v, dtype=np.float64)
+        static_cols = np.ascontiguousarray(preisach_outputs(np.ascontiguousarray(v), a, bb, 1.0 / d, z0)[rows])
+        floor = np.array(v[rows], dtype=np.float64)
         info["grid"] = (lo, hi)
     return static_cols, floor, info
 
@@ -397,17 +402,20 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
         bmat = pre.base[:k_rows]
         knots, centre = map_knots_for(ys, st.map_knots)
         mc, const, hi = _map_columns(ys, knots, centre)
-        rhs_extra = ys - bmat @ shift - const
-        a_b = bmat @ t
         k = mc.shape[1]
+        # A = [B T | mc], rhs = ys - B shift - const. Every product goes through the stored
+        # columns B (q of them) rather than B T (as many as the design's variables): B' [mc const]
+        # and mc' [mc ys const] are the only products over the rows, the rest is q x q algebra.
+        bc = bmat.T @ np.column_stack([mc, const])
+        mm = mc.T @ np.column_stack([mc, ys, const])
         g2 = np.empty((gram.shape[0] + k, gram.shape[0] + k))
         g2[:-k, :-k] = gram
-        cross = a_b.T @ mc
+        cross = t.T @ bc[:, :k]
         g2[:-k, -k:] = cross
         g2[-k:, :-k] = cross.T
-        g2[-k:, -k:] = mc.T @ mc
+        g2[-k:, -k:] = mm[:, :k]
         gram = g2
-        atb = np.concatenate([a_b.T @ rhs_extra, mc.T @ rhs_extra])
+        atb = np.concatenate([t.T @ (bty - gb @ shift - bc[:, k]), mm[:, k] - bc[:, :k].T @ shift - mm[:, k + 1]])
         # the map's variables go before the offset in x; keep them last here and reorder below
         lb = np.concatenate([lb, np.zeros(k)])
         ub = np.concatenate([ub, hi])
