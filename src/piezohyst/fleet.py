@@ -713,8 +713,8 @@ def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
                    done: Callable[[str, dict[str, Any]], None]) -> None:
     """One task per record, or per group of records when a record is quick; gathered as they finish.
 
-    The first records (two per worker, at most) go out one per task; what the quickest of them
-    took (so a worker's first, cold task does not count) sizes the groups of the rest
+    The first records (two per worker, at most) go out one per task; what the first of them to
+    come back took sizes the groups of the rest, sent while the workers fit the others
     (:func:`group_size`, :func:`group_sizes`: shrinking towards single records at the end): a batch of Bouc-Wen fits (seconds each) stays one task per record; a
     batch of P-I fits (milliseconds) goes out in groups, so that distributed's per-task cost
     does not eat the speed-up. Each batch is one ``client.map`` with results that come with
@@ -772,9 +772,10 @@ def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
                 done(name, one)
             fut.release()
             probes_out -= fut.key in keys
-            # the rest goes out once more records are back than there are workers (so at least
-            # one warm record, not only each worker's first), or when every probe is back
-            if rest and (len(seen) > workers or probes_out == 0):
+            # the rest goes out with the first record back, while every worker still has a second
+            # one to fit (waiting for more left both workers idle for a round trip, 20 ms of 0.8 s
+            # here); a cold first record only makes the groups smaller
+            if rest and (seen or probes_out == 0):
                 send_rest()
     finally:
         if pending:  # interrupted: do not leave the scheduler running the rest
