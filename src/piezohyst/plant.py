@@ -214,26 +214,32 @@ class CommandLimits:
 
 
 @njit
+def guard_step(x: float, low: float, high: float, max_step: float, tol: float,
+               state: FloatArray) -> float:  # pragma: no cover - compiled
+    """:meth:`GuardedPlant._guard` for one command, operation for operation: the command within
+    the range, then within ``max_step`` of the last one sent; ``state`` is ``[last, clipped,
+    slew_limited, largest_step, last_saturation, sent]``, updated but for ``sent``."""
+    last = state[0]
+    sat = 1.0 if x > high else (-1.0 if x < low else 0.0)
+    v = min(max(x, low), high)
+    if abs(v - x) > tol:
+        state[1] += 1.0
+    if abs(v - last) > max_step:
+        v = min(max(v, last - max_step), last + max_step)
+        state[2] += 1.0
+    state[4] = sat
+    state[3] = max(state[3], abs(v - last))
+    state[0] = v
+    return v
+
+
+@njit
 def _guard_table(x: FloatArray, low: float, high: float, max_step: float, tol: float,
                  state: FloatArray) -> FloatArray:  # pragma: no cover - compiled
-    """:meth:`GuardedPlant._guard` over a table, operation for operation; ``state`` is
-    ``[last, clipped, slew_limited, largest_step, last_saturation, sent]``, updated."""
+    """:func:`guard_step` over a table (``state`` as there, ``sent`` counted too)."""
     out = np.empty(x.shape[0])
-    last = state[0]
     for k in range(x.shape[0]):
-        xk = x[k]
-        sat = 1.0 if xk > high else (-1.0 if xk < low else 0.0)
-        v = min(max(xk, low), high)
-        if abs(v - xk) > tol:
-            state[1] += 1.0
-        if abs(v - last) > max_step:
-            v = min(max(v, last - max_step), last + max_step)
-            state[2] += 1.0
-        state[4] = sat
-        state[3] = max(state[3], abs(v - last))
-        last = v
-        out[k] = v
-    state[0] = last
+        out[k] = guard_step(x[k], low, high, max_step, tol, state)
     state[5] += x.shape[0]
     return out
 

@@ -37,6 +37,7 @@ from ..models.bouc_wen_inverse import BoucWenFeedforward, bw_ff_step
 from ..models.pi import InversePIFeedforward
 from ..models.play import pi_step
 from ..models.rate import _rate_pi_inverse_step
+from ..plant import guard_step
 from ..rig import VirtualRig, _rig_step
 from .pid import PID
 
@@ -44,6 +45,44 @@ from .pid import PID
 _FF_NONE, _FF_PI, _FF_BW = 0, 1, 2
 #: what the kernel returns when the loop ran to its end (else: the sample where it gave up)
 COMPLETED = -1
+
+
+@njit
+def pid_step(e: float, sat: int, pid_g: FloatArray, pid_state: FloatArray) -> float:  # pragma: no cover
+    """:meth:`PID.step` operation for operation: ``pid_g`` is ``[kp, ki, dt, a, b, u_min, u_max]``,
+    ``pid_state`` ``[integral, derivative, previous error, first]`` (updated); the integral stops
+    where the output, or the actuator (``sat``), is at its limit."""
+    if pid_state[3] != 0.0:
+        pid_state[2] = e
+        pid_state[3] = 0.0
+    pid_state[1] = pid_g[3] * pid_state[1] + pid_g[4] * (e - pid_state[2])
+    pid_state[2] = e
+    inc = pid_g[1] * pid_g[2] * e
+    u_try = pid_g[0] * e + pid_state[0] + inc + pid_state[1]
+    if inc > 0:
+        blocked = u_try > pid_g[6] or sat > 0
+    else:
+        blocked = u_try < pid_g[5] or sat < 0
+    if not blocked:
+        pid_state[0] += inc
+    out = pid_g[0] * e + pid_state[0] + pid_state[1]
+    return min(max(out, pid_g[5]), pid_g[6])
+
+
+@njit
+def output_limits(raw: float, ff_lim: FloatArray, ff_lim_state: FloatArray) -> float:  # pragma: no cover
+    """The compensator's output limits (``Compensator.step``): within ``ff_lim[2]`` of the last
+    command, then within ``ff_lim[0] .. ff_lim[1]``; ``ff_lim_state`` is ``[has last, last,
+    limited]``, updated."""
+    v = raw
+    if ff_lim_state[0] != 0.0 and ff_lim[2] < math.inf:
+        v = min(max(v, ff_lim_state[1] - ff_lim[2]), ff_lim_state[1] + ff_lim[2])
+    v = min(max(v, ff_lim[0]), ff_lim[1])
+    if v != raw:
+        ff_lim_state[2] += 1.0
+    ff_lim_state[0] = 1.0
+    ff_lim_state[1] = v
+    return v
 
 
 @njit
@@ -78,21 +117,7 @@ def _closed_loop(r: FloatArray, y: FloatArray, u: FloatArray,
             e = rk - y_prev
             if not math.isfinite(e):
                 return k
-            if pid_state[3] != 0.0:
-                pid_state[2] = e
-                pid_state[3] = 0.0
-            pid_state[1] = pid_g[3] * pid_state[1] + pid_g[4] * (e - pid_state[2])
-            pid_state[2] = e
-            inc = pid_g[1] * pid_g[2] * e
-            u_try = pid_g[0] * e + pid_state[0] + inc + pid_state[1]
-            if inc > 0:
-                blocked = u_try > pid_g[6] or sat > 0
-            else:
-                blocked = u_try < pid_g[5] or sat < 0
-            if not blocked:
-                pid_state[0] += inc
-            fb = pid_g[0] * e + pid_state[0] + pid_state[1]
-            fb = min(max(fb, pid_g[5]), pid_g[6])
+            fb = pid_step(e, sat, pid_g, pid_state)
         # -- the feedforward (Compensator.step: the inverse, then the output limits)
         if ff_kind == _FF_NONE:
             uk = fb
@@ -104,14 +129,7 @@ def _closed_loop(r: FloatArray, y: FloatArray, u: FloatArray,
                 raw = pi_step(x, ff_a, ff_b, ff_state, ff_s[0], ff_s[1])
             else:
                 raw = bw_ff_step(ff_a[0], ff_a[1], ff_a[2], ff_a[3], ff_state, x * 1e-6 - ff_s[0])
-            v = raw
-            if ff_lim_state[0] != 0.0 and ff_lim[2] < math.inf:
-                v = min(max(v, ff_lim_state[1] - ff_lim[2]), ff_lim_state[1] + ff_lim[2])
-            v = min(max(v, ff_lim[0]), ff_lim[1])
-            if v != raw:
-                ff_lim_state[2] += 1.0
-            ff_lim_state[0] = 1.0
-            ff_lim_state[1] = v
+            v = output_limits(raw, ff_lim, ff_lim_state)
             uk = v if at_ref else v + fb
         # -- LoopWatch.command
         if not math.isfinite(uk):
@@ -251,21 +269,7 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
             e = r[k - 1] - y_prev
             if not math.isfinite(e):
                 return k
-            if pid_state[3] != 0.0:
-                pid_state[2] = e
-                pid_state[3] = 0.0
-            pid_state[1] = pid_g[3] * pid_state[1] + pid_g[4] * (e - pid_state[2])
-            pid_state[2] = e
-            inc = pid_g[1] * pid_g[2] * e
-            u_try = pid_g[0] * e + pid_state[0] + inc + pid_state[1]
-            if inc > 0:
-                blocked = u_try > pid_g[6] or sat > 0
-            else:
-                blocked = u_try < pid_g[5] or sat < 0
-            if not blocked:
-                pid_state[0] += inc
-            out = pid_g[0] * e + pid_state[0] + pid_state[1]
-            fb = min(max(out, pid_g[5]), pid_g[6]) * vpu
+            fb = pid_step(e, sat, pid_g, pid_state) * vpu
         # -- the feedforward, d samples ahead (Compensator.step: the inverse, then its limits)
         j = min(k + d, n - 1)
         target = r[j] + (corr[j % p_len] if has_corr else 0.0)
@@ -274,14 +278,7 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
         raw = _rate_pi_inverse_step(target, ff_r, ff_w, ff_z, ff_in, ff_out, ff_a, ff_c, ff_s, ff_b, ff_vprev)
         if math.isnan(raw):
             return k
-        v = raw
-        if ff_lim_state[0] != 0.0 and ff_lim[2] < math.inf:
-            v = min(max(v, ff_lim_state[1] - ff_lim[2]), ff_lim_state[1] + ff_lim[2])
-        v = min(max(v, ff_lim[0]), ff_lim[1])
-        if v != raw:
-            ff_lim_state[2] += 1.0
-        ff_lim_state[0] = 1.0
-        ff_lim_state[1] = v
+        v = output_limits(raw, ff_lim, ff_lim_state)
         uk = v + fb
         # -- LoopWatch.command
         if not math.isfinite(uk):
@@ -297,17 +294,8 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
                 watch_state[0] = 0.0
                 watch_state[1] = 0.0
         # -- GuardedPlant._guard
-        sat = 1 if uk > g_hi else (-1 if uk < g_lo else 0)
-        gv = min(max(uk, g_lo), g_hi)
-        last = guard_state[0]
-        if abs(gv - uk) > g_tol:
-            guard_state[1] += 1.0
-        if abs(gv - last) > g_step:
-            gv = min(max(gv, last - g_step), last + g_step)
-            guard_state[2] += 1.0
-        guard_state[4] = sat
-        guard_state[3] = max(guard_state[3], abs(gv - last))
-        guard_state[0] = gv
+        gv = guard_step(uk, g_lo, g_hi, g_step, g_tol, guard_state)
+        sat = int(guard_state[4])
         guard_state[5] += 1.0
         # -- the rig
         yk = _rig_step(p, kv_a, kv_g, amp_a, st, line, consts, gv, noise[k - k0])
