@@ -86,6 +86,25 @@ def output_limits(raw: float, ff_lim: FloatArray, ff_lim_state: FloatArray) -> f
 
 
 @njit
+def watch_output_stops(y: FloatArray, r: FloatArray, k: int, limit: float, watch_window: bool, settle: int,
+                       w: int, span: float) -> bool:  # pragma: no cover
+    """:meth:`LoopWatch.output` for sample k: the output is not finite or further than ``limit``
+    from the reference, or the RMS error of the window ending at k exceeds ``span`` (with a hair
+    of margin: at the threshold the Python loop, summing differently, decides)."""
+    yk = y[k]
+    if not math.isfinite(yk) or abs(yk - r[k]) > limit:
+        return True
+    if watch_window and k >= settle and k % w == w - 1:
+        acc = 0.0
+        for i in range(k - w + 1, k + 1):
+            d = y[i] - r[i]
+            acc += d * d
+        if math.sqrt(acc / w) > span * (1.0 - 1e-9):
+            return True
+    return False
+
+
+@njit
 def _closed_loop(r: FloatArray, y: FloatArray, u: FloatArray,
                  # the rig (VirtualRig._rig_step's arguments) and its noise, one value per sample
                  p: FloatArray, kv_a: FloatArray, kv_g: FloatArray, amp_a: float, st: FloatArray,
@@ -149,17 +168,9 @@ def _closed_loop(r: FloatArray, y: FloatArray, u: FloatArray,
         yk = _rig_step(p, kv_a, kv_g, amp_a, st, line, consts, uk, noise[k])
         u[k] = uk
         y[k] = yk
-        # -- LoopWatch.output (the window's RMS with a hair of margin: at the threshold the Python
-        # loop, summing differently, decides)
-        if not math.isfinite(yk) or abs(yk - rk) > limit:
+        # -- LoopWatch.output
+        if watch_output_stops(y, r, k, limit, watch_window, settle, w, span):
             return k
-        if watch_window and k >= settle and k % w == w - 1:
-            acc = 0.0
-            for j in range(k - w + 1, k + 1):
-                d = y[j] - r[j]
-                acc += d * d
-            if math.sqrt(acc / w) > span * (1.0 - 1e-9):
-                return k
         y_prev = yk
     return COMPLETED
 
@@ -302,16 +313,9 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
         clipped_at[k + d] = sat != 0
         u[k] = gv
         y[k] = yk
-        # -- LoopWatch.output (the window's RMS with a hair of margin, as in _closed_loop)
-        if not math.isfinite(yk) or abs(yk - r[k]) > limit:
+        # -- LoopWatch.output
+        if watch_output_stops(y, r, k, limit, watch_window, settle, w, span):
             return k
-        if watch_window and k >= settle and k % w == w - 1:
-            acc = 0.0
-            for i in range(k - w + 1, k + 1):
-                dd = y[i] - r[i]
-                acc += dd * dd
-            if math.sqrt(acc / w) > span * (1.0 - 1e-9):
-                return k
         y_prev = yk
         loop_state[0] = y_prev
         loop_state[1] = sat
