@@ -85,3 +85,76 @@ def test_other_plants_take_the_python_loop():
     ref = ph.sinusoid(2.0, 3, 0.5, 2.5, plant.dt)
     assert ctl._track_step_run(ref, feedback=False, learning=False, period=None, label="", compiled=True) is None
     assert ctl.track(ref, feedback=False, learning=False).rmse < 1e-3
+
+
+def _tune_once(ctl, compiled, monkeypatch):
+    """ctl.tune() from a reset rig, with the safe tuning's hold compiled or forced to Python."""
+    from piezohyst.control import compiled_loop
+
+    with monkeypatch.context() as m:
+        if not compiled:
+            m.setattr(compiled_loop, "run_hold", lambda *a, **k: NotImplemented)
+        ctl.plant.reset()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ph.ClippingWarning)
+            counts = ctl.tune()
+    return ctl.tuning, counts, _state(ctl.plant)
+
+
+def test_safe_tuning_hold_compiled_equals_python(controller, monkeypatch):
+    """The bounded experiments of tune_integral_safely run compiled on the VirtualRig; every trial
+    (gains, overshoots, aborts, command bands), the gain chosen and the rig afterwards are those
+    of the Python loop."""
+    ctl = dataclasses.replace(controller)
+    fast, counts_fast, after_fast = _tune_once(ctl, True, monkeypatch)
+    slow, counts_slow, after_slow = _tune_once(ctl, False, monkeypatch)
+    assert counts_fast == counts_slow and counts_fast["commands_sent"] > 1000
+    assert fast.ki == slow.ki > 0 and fast.trials == slow.trials
+    assert fast.experiments == slow.experiments and len(fast.experiments) >= 3
+    for key in after_slow:
+        np.testing.assert_array_equal(after_fast[key], after_slow[key])
+
+
+def test_safe_tuning_hold_stops_on_its_check_as_python(controller, monkeypatch):
+    """A hold whose check trips (here: a far too strict tolerance) stops at the same sample, with
+    the same states, compiled or not."""
+    from piezohyst.control import compiled_loop
+    from piezohyst.control.pid import PID
+    from piezohyst.plant import GuardedPlant
+
+    ctl = controller
+    limits = ctl._limits()
+    outs = []
+    for compiled in (True, False):
+        rig = ph.VirtualRig(seed=3)
+        guard = GuardedPlant(rig, limits)
+        ff = ctl.feedforward()
+        pid = PID(0.0, 50.0, 0.0, rig.dt)
+        state = {"y": 0.0, "sat": 0, "u_lo": np.inf, "u_hi": -np.inf}
+        kw = dict(n=400, level=1.0, add=0.3, check=True, e0=1.0, fb0=0.0, tol_e=0.2, tol_fb=10.0,
+                  vpu=40.0, state=state)
+        if compiled:
+            res = compiled_loop.run_hold(guard, ff, pid, **kw)
+        else:
+            res = _python_hold(guard, ff, pid, **kw)
+        outs.append((res, dict(state), guard.sent, guard.last, pid.integral, _state(rig)))
+    (a, sa, na, la, ia, ra), (b, sb, nb, lb, ib, rb) = outs
+    assert a is None and b is None and sa == sb and na == nb and 0 < na < 400 and la == lb and ia == ib
+    for key in ra:
+        np.testing.assert_array_equal(ra[key], rb[key])
+
+
+def _python_hold(plant, ff, pid, *, n, level, add, check, e0, fb0, tol_e, tol_fb, vpu, state):
+    """tune_integral_safely's Python hold (its ``run``), for the comparison above."""
+    fbs = np.empty(n)
+    for k in range(n):
+        fb = pid.step(level - state["y"], state["sat"]) * vpu
+        u = ff.step(level) + fb + add
+        state["y"] = plant.step(u)
+        state["sat"] = plant.last_saturation
+        state["u_lo"] = min(state["u_lo"], plant.last)
+        state["u_hi"] = max(state["u_hi"], plant.last)
+        fbs[k] = fb
+        if check and (abs((level - state["y"]) - e0) > tol_e or abs(fb - fb0) > tol_fb):
+            return None
+    return fbs

@@ -170,3 +170,50 @@ def test_refuses_bad_options():
         ph.pso_minimize(lambda x: 1.0, [(-1, 1)])
     with pytest.raises(ValueError, match="inertia"):
         ph.pso_minimize(sphere, [(-1, 1)], inertia=-0.1)
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 12), d=st.integers(1, 6), spread=st.floats(0.01, 10.0))
+def test_compiled_move_is_compute_velocity_then_apply_bounds(seed, n, d, spread):
+    """swarm_move (the compiled runs' eqs. 5-6) is the NumPy backend operation for operation."""
+    from piezohyst.pso import swarm_move
+
+    rng = np.random.default_rng(seed)
+    lb, ub = -rng.random(d), rng.random(d) + 0.01
+    vmax = 0.5 * (ub - lb)
+    x = rng.uniform(lb, ub, (n, d))
+    v = rng.normal(0, spread, (n, d))  # large: many particles hit the clamp and the bounds
+    pbest, gbest = rng.uniform(lb, ub, (n, d)), rng.uniform(lb, ub, d)
+    r = rng.random((2, n, d))
+    ref_v = compute_velocity(v, x, pbest, gbest, inertia=0.73, c1=1.5, c2=1.4, vmax=vmax,
+                             rng=_FixedDraw(r))
+    ref_x = x + ref_v
+    apply_bounds(ref_x, ref_v, lb, ub)
+    swarm_move(x, v, pbest, gbest, r, 0.73, 1.5, 1.4, vmax, lb, ub)
+    np.testing.assert_array_equal(x, ref_x)
+    np.testing.assert_array_equal(v, ref_v)
+
+
+class _FixedDraw:
+    """A generator stand-in that returns given random numbers."""
+
+    def __init__(self, r):
+        self.r = r
+
+    def random(self, shape):
+        assert tuple(shape) == self.r.shape
+        return self.r
+
+
+@pytest.mark.parametrize("seed", [0, 1, 7])
+def test_compiled_run_equals_step_by_step(seed):
+    """An objective that offers the whole loop compiled (the P-I weights' fitness) gives, bit for
+    bit, what the Python loop gives (forced here by a callback): positions, history, counts."""
+    rng = np.random.default_rng(seed)
+    u = np.concatenate([np.linspace(0, 1, 200), np.linspace(1, 0.2, 150), np.linspace(0.2, 0.8, 100)]) * 100
+    y = ph.PrandtlIshlinskii(ph.equal_thresholds(6, 100.0), rng.uniform(0.01, 0.1, 6)).simulate(u)
+    y = y + 1e-3 * rng.standard_normal(u.size)
+    fast = ph.fit_pi(u, y, n=6, method="pso", seed=seed, n_particles=15, max_iter=250)
+    slow = ph.fit_pi(u, y, n=6, method="pso", seed=seed, n_particles=15, max_iter=250, callback=lambda s: None)
+    np.testing.assert_array_equal(fast.model.weights, slow.model.weights)
+    np.testing.assert_array_equal(fast.history, slow.history)
+    assert fast.nfev == slow.nfev == 15 * 251 and fast.rmse == slow.rmse

@@ -320,3 +320,120 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
         loop_state[0] = y_prev
         loop_state[1] = sat
     return COMPLETED
+
+
+# -- the safe tuning's hold at a level (tune_integral_safely) ------------------------------------
+#: why :func:`_hold_loop` stopped before the end: a trial's check (sample k done), the inverse
+#: refused its input (the PID stepped, nothing else), the command is not finite (the feedforward
+#: stepped too, nothing sent)
+HOLD_CHECK, HOLD_FF, HOLD_COMMAND = 1, 2, 3
+
+
+@njit
+def _hold_loop(n: int, level: float, add: float, check: bool, e0: float, fb0: float, tol_e: float, tol_fb: float,
+               fbs: FloatArray, vpu: float,
+               # the rate-dependent P-I inverse (RateCompensator._pi_kernel_args), its limits and their state
+               ff_r: FloatArray, ff_w: FloatArray, ff_z: FloatArray, ff_in: float, ff_out: float,
+               ff_a: FloatArray, ff_c: FloatArray, ff_s: FloatArray, ff_b: float, ff_vprev: FloatArray,
+               ff_lim: FloatArray, ff_lim_state: FloatArray,
+               pid_g: FloatArray, pid_state: FloatArray,
+               # GuardedPlant (as in _guarded_loop)
+               guard: FloatArray, guard_state: FloatArray,
+               # the rig and its generator (one normal draw per sample, as VirtualRig.step)
+               p: FloatArray, kv_a: FloatArray, kv_g: FloatArray, amp_a: float, st: FloatArray,
+               line: FloatArray, consts: FloatArray, rng: Any,
+               # [y, sat, u_lo, u_hi, why stopped, the command that was not finite]
+               loop_state: FloatArray) -> int:  # pragma: no cover
+    """``n`` samples of the safe tuning's hold (the ``run`` of
+    :func:`~piezohyst.control.tuning.tune_integral_safely`), operation for operation: integral
+    feedback on the error to ``level``, the feedforward of ``level``, plus ``add`` (the probe),
+    through the guard to the rig; the feedback's outputs in ``fbs``. With ``check``, it stops
+    after the first sample whose error or feedback moved further than ``tol_e`` / ``tol_fb`` from
+    ``e0`` / ``fb0``. Returns :data:`COMPLETED` or the sample where it stopped (why: ``loop_state[4]``)."""
+    y = loop_state[0]
+    sat = int(loop_state[1])
+    u_lo, u_hi = loop_state[2], loop_state[3]
+    g_lo, g_hi, g_step, g_tol = guard[0], guard[1], guard[2], guard[3]
+    for k in range(n):
+        fb = pid_step(level - y, sat, pid_g, pid_state) * vpu
+        fbs[k] = fb
+        raw = _rate_pi_inverse_step(level, ff_r, ff_w, ff_z, ff_in, ff_out, ff_a, ff_c, ff_s, ff_b, ff_vprev)
+        if math.isnan(raw):
+            loop_state[4] = HOLD_FF
+            return k
+        u = output_limits(raw, ff_lim, ff_lim_state) + fb + add
+        if not math.isfinite(u):
+            loop_state[4] = HOLD_COMMAND
+            loop_state[5] = u
+            return k
+        gv = guard_step(u, g_lo, g_hi, g_step, g_tol, guard_state)
+        guard_state[5] += 1.0
+        sat = int(guard_state[4])
+        y = _rig_step(p, kv_a, kv_g, amp_a, st, line, consts, gv, rng.standard_normal())
+        u_lo = min(u_lo, gv)
+        u_hi = max(u_hi, gv)
+        loop_state[0], loop_state[1], loop_state[2], loop_state[3] = y, sat, u_lo, u_hi
+        if check and (abs((level - y) - e0) > tol_e or abs(fb - fb0) > tol_fb):
+            loop_state[4] = HOLD_CHECK
+            return k
+    return COMPLETED
+
+
+def run_hold(guard: Any, ff: Any, pid: Any, *, n: int, level: float, add: float, check: bool, e0: float,
+             fb0: float, tol_e: float, tol_fb: float, vpu: float, state: dict[str, Any]) -> Any:
+    """The safe tuning's hold compiled (:func:`_hold_loop`) when the parts have kernels: a
+    :class:`~piezohyst.plant.GuardedPlant` around a :class:`~piezohyst.rig.VirtualRig`, a
+    rate-dependent P-I compensator, a :class:`PID` (exact types). Returns the feedback's outputs,
+    None when the check stopped the hold, or ``NotImplemented`` (the parts have no kernels: the
+    caller runs its Python loop). ``state`` (``y``, ``sat``, ``u_lo``, ``u_hi``) and the objects'
+    states are left as the Python loop leaves them; where that loop would raise (a value that is
+    not finite), the same call raises here, from the same state."""
+    from ..models.rate import RateCompensator
+    from ..plant import GuardedPlant
+
+    rig = getattr(guard, "plant", None)
+    if (type(guard) is not GuardedPlant or type(rig) is not VirtualRig or type(pid) is not PID
+            or type(ff) is not RateCompensator):
+        return NotImplemented
+    ff_args = ff._pi_kernel_args()
+    if ff_args is None:
+        return NotImplemented
+    lo, hi = ff.u_range if ff.u_range is not None else (-math.inf, math.inf)
+    ff_lim = np.array([lo, hi, ff.max_slew if ff.max_slew is not None else math.inf])
+    last = ff._u_last
+    ff_lim_state = np.array([0.0 if last is None else 1.0, 0.0 if last is None else last, float(ff.limited)])
+    pid_g = np.array([pid.kp, pid.ki, pid.dt, pid._a, pid._b, pid.u_min, pid.u_max])
+    pid_state = np.array([pid.integral, pid._d, pid._e_prev, 1.0 if pid._first else 0.0])
+    lim = guard.limits
+    g = np.array([lim.low, lim.high, lim.max_step, guard._tol])
+    g_state = np.array([guard.last, guard.clipped, guard.slew_limited, guard.largest_step, guard.last_saturation,
+                        guard.sent], dtype=np.float64)
+    loop_state = np.array([state["y"], state["sat"], state["u_lo"], state["u_hi"], 0.0, 0.0])
+    fbs = np.empty(n)
+    args: tuple[Any, ...] = (n, float(level), float(add), bool(check), float(e0), float(fb0), float(tol_e),
+                             float(tol_fb), fbs, float(vpu), *ff_args, ff_lim, ff_lim_state, pid_g, pid_state, g,
+                             g_state, rig._p, rig._kv_a, rig._kv_g, rig._amp_a, rig._st, rig._line, rig._consts,
+                             rig._rng, loop_state)
+    k = _hold_loop(*args)
+    # the objects' states as the Python loop leaves them
+    why = int(loop_state[4]) if k != COMPLETED else 0
+    rig._n += int(g_state[5]) - guard.sent
+    guard.last, guard.largest_step = float(g_state[0]), float(g_state[3])
+    guard.clipped, guard.slew_limited = int(g_state[1]), int(g_state[2])
+    guard.last_saturation, guard.sent = int(g_state[4]), int(g_state[5])
+    ff._u_last = float(ff_lim_state[1]) if ff_lim_state[0] != 0.0 else None
+    ff.limited = int(ff_lim_state[2])
+    pid.integral, pid._d, pid._e_prev = (float(v) for v in pid_state[:3])
+    pid._first = bool(pid_state[3] != 0.0)
+    state["y"], state["sat"] = float(loop_state[0]), int(loop_state[1])
+    state["u_lo"], state["u_hi"] = float(loop_state[2]), float(loop_state[3])
+    if k == COMPLETED:
+        return fbs
+    if why == HOLD_CHECK:
+        return None
+    # what the Python loop raises at this sample, from the state it would raise in
+    if why == HOLD_FF:
+        ff.step(level)
+    else:
+        guard.step(float(loop_state[5]))
+    raise RuntimeError(f"the compiled hold stopped at sample {k} where the Python loop goes on")  # pragma: no cover

@@ -373,6 +373,7 @@ def tune_integral_safely(
     volts_per_um : float
         The feedback's output scale (the model's mean inverse slope).
     """
+    from .compiled_loop import run_hold
     from .pid import PID
     from .tracking import lead_in
 
@@ -414,6 +415,11 @@ def tune_integral_safely(
 
     def run(n: int, probe_on: bool, fb0: float, e0: float, check: bool) -> FloatArray | None:
         """n samples at the hold; the feedback's outputs, or None if the trial had to stop."""
+        tol_e, tol_fb = 4 * y_probe + 10 * noise, 4 * probe
+        fast = run_hold(plant, ff, pid, n=n, level=level, add=probe if probe_on else 0.0, check=check, e0=e0,
+                        fb0=fb0, tol_e=tol_e, tol_fb=tol_fb, vpu=volts_per_um, state=state)
+        if fast is not NotImplemented:  # the same loop, compiled
+            return fast  # type: ignore[no-any-return]
         fbs = np.empty(n)
         for k in range(n):
             fb = pid.step(level - state["y"], state["sat"]) * volts_per_um
@@ -423,7 +429,7 @@ def tune_integral_safely(
             state["u_lo"] = min(state["u_lo"], plant.last)
             state["u_hi"] = max(state["u_hi"], plant.last)
             fbs[k] = fb
-            if check and (abs((level - state["y"]) - e0) > 4 * y_probe + 10 * noise or abs(fb - fb0) > 4 * probe):
+            if check and (abs((level - state["y"]) - e0) > tol_e or abs(fb - fb0) > tol_fb):
                 return None
         return fbs
 
