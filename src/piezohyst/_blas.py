@@ -19,6 +19,7 @@ import contextlib
 import ctypes
 import functools
 import os
+import sys
 import threading
 from typing import Any, Callable, Iterator, TypeVar
 
@@ -32,8 +33,25 @@ _depth = 0
 _saved: list[tuple[Any, int]] = []
 
 
+_found: tuple[int, list[tuple[Any, Any]]] | None = None
+
+
 def _openblas_controls() -> list[tuple[Any, Any]]:
-    """``(set, get)`` of each OpenBLAS loaded in this process (Linux: from /proc/self/maps)."""
+    """``(set, get)`` of each OpenBLAS loaded in this process (Linux: from /proc/self/maps).
+
+    Reading the maps of a process that has loaded numba and scipy costs milliseconds (thousands of
+    lines), as much as a small fit: the answer is kept until a module is imported (a library such as
+    scipy's OpenBLAS is loaded by an import)."""
+    global _found
+    key = len(sys.modules)
+    if _found is not None and _found[0] == key:
+        return _found[1]
+    out = _scan_openblas()
+    _found = (key, out)
+    return out
+
+
+def _scan_openblas() -> list[tuple[Any, Any]]:
     try:
         with open("/proc/self/maps", encoding="utf-8", errors="replace") as f:
             paths = {line.split()[-1] for line in f if "openblas" in line.lower() and "/" in line}
