@@ -74,7 +74,10 @@ def _pi_dense_into(
 # only min and max), and the chain is a quarter as long. That costs more operations per sample,
 # which pays while there are few operators (the chain dominates); with many, the plain loop is
 # faster. The weighted sum of eq. (3) may be reassociated (vectorised over the operators): the
-# outputs differ from pi_step's strict left-to-right sum by rounding only.
+# outputs differ from pi_step's strict left-to-right sum by rounding only, and that rounding is
+# the optimiser's (a process that compiled the kernel and one that loaded it from numba's cache
+# can differ in the last bits; strictly ordered, this loop was 3x slower). The fits' sums below
+# are strictly ordered: a fit is the same in every process.
 _FOUR_AT_ONCE = 32  # up to this many operators, four samples at once (measured: see the comment)
 
 
@@ -550,7 +553,46 @@ _GRAM_COMPILED_MAX = 64
 _GRAM_BLOCK = 64
 
 
-@njit_fast({"reassoc", "contract", "nsz"})
+# The sums of the normal equations run in four lanes (elements k = l mod 4 in lane l, added
+# left to right, the lanes added last): the compiler puts the lanes in one vector register, and
+# the order of every addition is fixed by the code. (With numba's fastmath "reassoc" instead, the
+# order was the optimiser's: a process that compiled the kernels and one that loaded them from
+# numba's cache differed in the last bits of Z'y.)
+@njit
+def _sum4(x: FloatArray, p: int, n: int) -> float:  # pragma: no cover - compiled
+    """``x[p] + ... + x[p + n - 1]`` in four lanes (above)."""
+    a0 = a1 = a2 = a3 = 0.0
+    k = 0
+    while k + 4 <= n:
+        a0 += x[p + k]
+        a1 += x[p + k + 1]
+        a2 += x[p + k + 2]
+        a3 += x[p + k + 3]
+        k += 4
+    while k < n:
+        a0 += x[p + k]
+        k += 1
+    return (a0 + a1) + (a2 + a3)
+
+
+@njit
+def _dot4(x: FloatArray, p: int, v: FloatArray, q: int, n: int) -> float:  # pragma: no cover - compiled
+    """``sum_k x[p + k] v[q + k]`` over k < n, in four lanes (above)."""
+    a0 = a1 = a2 = a3 = 0.0
+    k = 0
+    while k + 4 <= n:
+        a0 += x[p + k] * v[q + k]
+        a1 += x[p + k + 1] * v[q + k + 1]
+        a2 += x[p + k + 2] * v[q + k + 2]
+        a3 += x[p + k + 3] * v[q + k + 3]
+        k += 4
+    while k < n:
+        a0 += x[p + k] * v[q + k]
+        k += 1
+    return (a0 + a1) + (a2 + a3)
+
+
+@njit
 def _gram_into(
     u: FloatArray, r: FloatArray, z: FloatArray, y: FloatArray, delays: Any, gram: FloatArray,
     zty: FloatArray, colsum: FloatArray,
@@ -571,22 +613,11 @@ def _gram_into(
                 buf[i, k] = zi
         for i in range(m):
             bi = buf[i]
-            acc = 0.0
-            for k in range(nb):
-                acc += bi[k]
-            colsum[i] += acc
+            colsum[i] += _sum4(bi, 0, nb)
             for q in range(nd):
-                off = a + delays[q]
-                acc = 0.0
-                for k in range(nb):
-                    acc += bi[k] * y[off + k]
-                zty[i, q] += acc
+                zty[i, q] += _dot4(bi, 0, y, a + delays[q], nb)
             for j in range(i, m):
-                bj = buf[j]
-                acc = 0.0
-                for k in range(nb):
-                    acc += bi[k] * bj[k]
-                gram[i, j] += acc
+                gram[i, j] += _dot4(bi, 0, buf[j], 0, nb)
 
 
 # -- event-driven normal equations ---------------------------------------------------------------
@@ -617,38 +648,63 @@ _GRAM_TRY = 64  # rows the event-driven pass runs before it judges its event rat
 _GRAM_EVENT_ROWS = 6  # gives up above one event per this many rows (an event costs several dense rows)
 
 
-@njit_fast({"reassoc", "contract", "nsz"})
+@njit
 def _run_sums(u: FloatArray, y: FloatArray, delays: Any, p: int, q: int, c: float,
               glued: bool, sums: FloatArray) -> None:  # pragma: no cover - compiled
     """``sums`` = [S_v, S_vv, S_y,d..., S_vy,d...] over the rows p..q-1, v = u - c (the u sums
-    only if ``glued``: nothing moves with the input otherwise). Slices, so each loop is a
-    plain vectorised reduction."""
+    only if ``glued``: nothing moves with the input otherwise), each in four lanes (``_sum4``)."""
     nd = delays.shape[0]
-    uu = u[p:q]
+    n = q - p
     sv = svv = 0.0
     if glued:
-        for k in range(uu.shape[0]):
-            v = uu[k] - c
-            sv += v
-            svv += v * v
+        a0 = a1 = a2 = a3 = 0.0
+        b0 = b1 = b2 = b3 = 0.0
+        k = 0
+        while k + 4 <= n:
+            v0 = u[p + k] - c
+            v1 = u[p + k + 1] - c
+            v2 = u[p + k + 2] - c
+            v3 = u[p + k + 3] - c
+            a0 += v0
+            a1 += v1
+            a2 += v2
+            a3 += v3
+            b0 += v0 * v0
+            b1 += v1 * v1
+            b2 += v2 * v2
+            b3 += v3 * v3
+            k += 4
+        while k < n:
+            v0 = u[p + k] - c
+            a0 += v0
+            b0 += v0 * v0
+            k += 1
+        sv = (a0 + a1) + (a2 + a3)
+        svv = (b0 + b1) + (b2 + b3)
     sums[0] = sv
     sums[1] = svv
     for t in range(nd):
-        yy = y[p + delays[t]: q + delays[t]]
-        sy = svy = 0.0
+        o = p + delays[t]
+        sy = _sum4(y, o, n)
+        svy = 0.0
         if glued:
-            for k in range(yy.shape[0]):
-                yk = yy[k]
-                sy += yk
-                svy += (uu[k] - c) * yk
-        else:
-            for k in range(yy.shape[0]):
-                sy += yy[k]
+            a0 = a1 = a2 = a3 = 0.0
+            k = 0
+            while k + 4 <= n:
+                a0 += (u[p + k] - c) * y[o + k]
+                a1 += (u[p + k + 1] - c) * y[o + k + 1]
+                a2 += (u[p + k + 2] - c) * y[o + k + 2]
+                a3 += (u[p + k + 3] - c) * y[o + k + 3]
+                k += 4
+            while k < n:
+                a0 += (u[p + k] - c) * y[o + k]
+                k += 1
+            svy = (a0 + a1) + (a2 + a3)
         sums[2 + t] = sy
         sums[2 + nd + t] = svy
 
 
-@njit_fast({"reassoc", "contract", "nsz"})
+@njit
 def _add_run(a: FloatArray, j: int, rows: int, sums: FloatArray, gram: FloatArray, zty: FloatArray,
              colsum: FloatArray) -> None:  # pragma: no cover - compiled
     """One run's share of the accumulators: operators 0..j-1 are v + a_i, the rest a_i. Only
@@ -795,25 +851,20 @@ def _gram_auto_into(
         k = kc
 
 
-@njit_fast({"reassoc", "contract", "nsz"})
+@njit
 def _y_sums(y: FloatArray, delays: Any) -> tuple[FloatArray, FloatArray]:  # pragma: no cover
     """``1'y[d:]`` and ``y[d:]'y[d:]`` for every delay: the whole record's sums less those of its
-    first ``d`` samples (compiled: numpy's dot goes to a threaded BLAS, whose spinning costs
-    this thread more than the sum itself on a busy machine)."""
-    s1 = s2 = 0.0
-    for k in range(y.shape[0]):
-        s1 += y[k]
-        s2 += y[k] * y[k]
+    first ``d`` samples, in four lanes (``_sum4``; compiled: numpy's dot goes to a threaded BLAS,
+    whose spinning costs this thread more than the sum itself on a busy machine)."""
+    n = y.shape[0]
+    s1 = _sum4(y, 0, n)
+    s2 = _dot4(y, 0, y, 0, n)
     nd = delays.shape[0]
     ysum = np.empty(nd)
     yty = np.empty(nd)
     for t in range(nd):
-        h1 = h2 = 0.0
-        for k in range(delays[t]):
-            h1 += y[k]
-            h2 += y[k] * y[k]
-        ysum[t] = s1 - h1
-        yty[t] = s2 - h2
+        ysum[t] = s1 - _sum4(y, 0, delays[t])
+        yty[t] = s2 - _dot4(y, 0, y, 0, delays[t])
     return ysum, yty
 
 
