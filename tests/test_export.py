@@ -73,6 +73,9 @@ def example_models():
         "bouc-wen": ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072, gamma=0.02,
                                offset=3e-8),
         "bouc-wen-hysteresis": ph.BoucWenHysteresis(d1=0.021, alpha=0.3, beta=0.035, gamma=-0.01, offset=0.02),
+        # invertible within its operating range only (alpha M = 1.13 over every state, 0.94 within)
+        "bouc-wen-hysteresis (operating range)": ph.BoucWenHysteresis(d1=0.021, alpha=0.31, beta=0.02, gamma=-0.009,
+                                                                      offset=0.02, v_range=(-15.0, 115.0)),
         "rate-dependent (Bouc-Wen hysteresis)": ph.RateDependent(
             static=ph.BoucWenHysteresis(d1=0.021, alpha=0.4, beta=0.035, gamma=0.01), taus=[0.003, 0.2],
             lag_weights=[0.002, -0.0007], dt=DT, input_tau=5e-4),
@@ -169,6 +172,24 @@ def test_c_clip_and_step_limit_equal_python(tmp_path, driver_obj):
     py = model.compensator(DT, u_range=(5.0, 60.0), max_slew=0.05)
     expected = py.command(ref)
     assert py.limited > 100  # both limits act on this reference
+    assert np.max(np.abs(run_c(exe, ref) - expected)) <= 1e-9
+
+
+@needs_cc
+def test_c_keeps_the_operating_range_as_python_does(tmp_path, driver_obj):
+    """A Bouc-Wen hysteresis with an operating range: targets beyond what the range reaches give
+    the range's end, in C as in Python."""
+    from piezohyst.export import export_c
+
+    model = MODELS["bouc-wen-hysteresis (operating range)"]
+    export_c(model, tmp_path)
+    exe = build(tmp_path, driver_obj)
+    walk = references(model, n=20000, seed=4)["random walk"]
+    lo, hi = float(walk.min()), float(walk.max())
+    ref = np.concatenate([walk, np.linspace(walk[-1], hi + 2.0 * (hi - lo), 500), np.linspace(hi, lo - 2.0 * (hi - lo), 900),
+                          np.linspace(lo, 0.5 * (lo + hi), 300)])
+    expected = model.compensator().command(ref)
+    assert expected.max() == 115.0 and expected.min() == -15.0  # the range's ends, reached
     assert np.max(np.abs(run_c(exe, ref) - expected)) <= 1e-9
 
 

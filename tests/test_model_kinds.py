@@ -33,15 +33,22 @@ def _bwh():
     return ph.BoucWenHysteresis(d1=0.02, alpha=0.35, beta=0.03, gamma=-0.008, offset=0.05)
 
 
+def _bwh_ranged():
+    """Skewed so far that ``alpha M = 1.03`` (not invertible over every state), ``0.93`` over the
+    states 0-100 V reaches: invertible with its operating range."""
+    return ph.BoucWenHysteresis(d1=0.02, alpha=0.31, beta=0.03, gamma=-0.012, offset=0.05, v_range=(0.0, 100.0))
+
+
 EXAMPLES = {
     "prandtl-ishlinskii": [_pi],
     "bouc-wen": [lambda: ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072, gamma=0.0)],
     "preisach": [_preisach],
-    "bouc-wen-hysteresis": [_bwh],
+    "bouc-wen-hysteresis": [_bwh, _bwh_ranged],
     "rate-dependent": [
         lambda: ph.RateDependent(_pi(), [0.005, 0.05, 1.0], [0.001, -0.0015, 0.0008], DT, input_tau=0.002),
         lambda: ph.RateDependent(_preisach(), [0.02], [0.001], DT),
         lambda: ph.RateDependent(_bwh(), [0.01, 0.3], [0.002, 0.001], DT, input_tau=0.003),
+        lambda: ph.RateDependent(_bwh_ranged(), [0.01, 0.3], [0.002, 0.001], DT, input_tau=0.003),
     ],
     "asymmetric-pi": [
         lambda: ph.AsymmetricPI(_pi(), ph.OutputMap([0.5, 1.5], [0.4, -0.5], 1.0)),
@@ -171,6 +178,44 @@ def test_bad_parameters_refused(kind, i, make):
     assert tried >= 1
     with pytest.raises((ValueError, KeyError, TypeError)):
         cls.from_dict({})
+
+
+@settings(max_examples=30, deadline=None)
+@given(shape=st.floats(0.3, 20.0), skew=st.floats(-0.85, 0.85), below=st.floats(0.0, 0.5), seed=st.integers(0, 10_000))
+def test_the_operating_range_bounds_every_branch_slope(shape, skew, below, seed):
+    """``max_unit_slope(beta, gamma, v_range)`` bounds ``dh1/dv`` on every branch an input within the
+    range reaches from rest (random reversal points, then full sweeps), and never exceeds the
+    bound of every state; a model invertible only within its range refuses to be built without it."""
+    from piezohyst.models.bouc_wen_hysteresis import max_unit_slope, unit_hysteresis
+
+    rng = np.random.default_rng(seed)
+    lo, hi = -below * 100.0, (1.0 - below) * 100.0
+    beta = shape / 100.0
+    gamma = skew * beta
+    m_range = max_unit_slope(beta, gamma, (lo, hi))
+    assert m_range <= max_unit_slope(beta, gamma)
+    turns = np.concatenate([[0.0], rng.uniform(lo, hi, 40), [lo, hi, lo, hi, lo]])
+    v = np.concatenate([np.linspace(a, b, 400) for a, b in zip(turns[:-1], turns[1:])])
+    dv, dh = np.diff(v), np.diff(unit_hysteresis(v, beta, gamma))
+    moving = np.abs(dv) > 1e-9
+    assert (dh[moving] / dv[moving]).max() <= m_range * (1.0 + 1e-9)
+
+
+def test_an_operating_range_keeps_the_inverse_inside_it():
+    """Beyond what the range reaches the command is the range's end (as a clipping amplifier's);
+    within it the inverse is exact; without the range the same model is refused."""
+    m = _bwh_ranged()
+    assert m.min_slope > 0 and m.to_dict()["v_range"] == [0.0, 100.0]
+    with pytest.raises(ValueError, match="not invertible"):
+        ph.BoucWenHysteresis(**{**m.to_dict(), "v_range": None}).compensator()
+    with pytest.raises(ValueError, match="v_range"):
+        ph.BoucWenHysteresis(d1=0.02, alpha=0.3, beta=0.03, v_range=(10.0, 100.0))  # 0 V outside
+    y = m.predict(_u())
+    x_d = np.concatenate([y, np.linspace(y[-1], y.max() + 0.5 * np.ptp(y), 300), np.linspace(y.max(), y.min() - 1.0, 600)])
+    u = m.compensator().command(x_d)
+    assert u.min() >= 0.0 and u.max() <= 100.0 and u.max() == 100.0 and u.min() == 0.0
+    assert np.abs(m.predict(u[: y.size]) - y).max() < 1e-9 * np.ptp(y)
+    assert _chatter(u, x_d) <= 2
 
 
 def test_unknown_kind_is_named():

@@ -3,7 +3,7 @@
 A file looks like::
 
     {
-      "schema": "piezohyst.model/2",
+      "schema": "piezohyst.model/3",
       "kind": "prandtl-ishlinskii" | "bouc-wen" | "rate-dependent" | "asymmetric-pi" | "preisach",
       "producer": "piezohyst 0.1.0; command: ...; at ...",
       "units": {...},
@@ -38,8 +38,11 @@ MAX_FILE_BYTES = 64 * 1024 * 1024
 
 SCHEMA_NAME = "piezohyst.model"
 #: Version 2 added the kinds beyond the paper (nested models in "parameters"); version 1 files
-#: (prandtl-ishlinskii, bouc-wen) have the same layout and load unchanged.
-SCHEMA_VERSION = 2
+#: (prandtl-ishlinskii, bouc-wen) have the same layout and load unchanged. Version 3: a Bouc-Wen
+#: hysteresis may carry its operating range (``v_range``), which its inverse keeps to; a reader
+#: that dropped it would invert a model that is invertible only within it, so older readers refuse
+#: version 3 files. Versions 1 and 2 load unchanged.
+SCHEMA_VERSION = 3
 #: Deepest nesting a model file may have (wrappers hold models; nothing legitimate nests deeper).
 MAX_DEPTH = 32
 

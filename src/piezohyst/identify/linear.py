@@ -251,11 +251,14 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure,
     elif st.static == "bouc-wen":
         beta, gamma = st.shape
         h1 = unit_hysteresis(v, beta, gamma)[rows]
-        mslope = max_unit_slope(beta, gamma)
+        # invertible over the states the data's range reaches (and 0 V, the de-energised state)
+        v_range = (min(float(v_ref.min()), 0.0), max(float(v_ref.max()), 0.0))
+        mslope = max_unit_slope(beta, gamma, v_range)
         vs = v[rows]
         static_cols = (mslope * vs - h1)[:, None]  # coefficient alpha d1 >= 0; slope floor on v
         floor = np.array(vs, dtype=np.float64)
         info["max_unit_slope"] = mslope
+        info["v_range"] = v_range
     else:
         lo, hi = float(v_ref.min()), float(v_ref.max())
         pad = 1e-9 * (hi - lo)
@@ -441,7 +444,8 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
     elif st.static == "bouc-wen":
         ad1 = float(tt[0])
         d1 = ad1 * pre.decode_info["max_unit_slope"] + float(coef[p])
-        static = BoucWenHysteresis(d1=d1, alpha=ad1 / d1, beta=st.shape[0], gamma=st.shape[1], offset=offset)
+        static = BoucWenHysteresis(d1=d1, alpha=ad1 / d1, beta=st.shape[0], gamma=st.shape[1], offset=offset,
+                                   v_range=pre.decode_info["v_range"])
     else:
         lo, hi_ = pre.decode_info["grid"]
         static = Preisach(lo=lo, hi=hi_, weights=np.maximum(tt, 0.0), slope=float(coef[p]), offset=offset)

@@ -560,7 +560,10 @@ def _bouc_wen_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain:
                      force: bool) -> _Candidate:
     """The Bouc-Wen hysteresis with the stage's lags (or none): its shape (beta, gamma) on a grid
     over the input's span (``beta span`` from 0.5 to 15: loops that saturate little to much;
-    ``gamma / beta`` -0.5, 0, 0.5: skewed either way or not), then refined around the best."""
+    ``gamma / beta`` -0.5, 0, 0.5: skewed either way or not), then refined around the best by a
+    pattern search whose steps shrink (``beta`` by a factor 1.7, 1.3, 1.14; ``gamma / beta`` by
+    0.25, 0.125, 0.0625): the shape is a nonlinear parameter, and the loop's skew matters to the
+    compensator more than a coarse grid resolves."""
     span = float(np.ptp(sc.u[: sc.n_fit]))
     keep_rate = lagged and st0.rate_dependent
     taus, itau = (st0.taus, st0.input_tau) if keep_rate else ((), 0.0)
@@ -569,18 +572,24 @@ def _bouc_wen_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain:
         return inc
 
     def cand(b: float, g_ratio: float) -> _Candidate:
+        b, g_ratio = float(f"{b:.9g}"), round(g_ratio, 9)  # one key per point however it was reached
         st = Structure("bouc-wen", 1, 0, taus, itau, st0.delay, shape=(b / span, g_ratio * b / span))
         return sc.linear(st)
 
     grid = [cand(b, g) for b in (0.5, 1.5, 5.0, 15.0) for g in (-0.5, 0.0, 0.5)]
     best = _best(grid)
-    b0 = best.structure.shape[0] * span
-    g0 = best.structure.shape[1] / best.structure.shape[0]
-    for b in (b0 / 1.7, b0 * 1.7):
-        for g in (g0 - 0.25, g0, g0 + 0.25):
-            if -0.9 < g < 0.9:
-                c = cand(b, g)
-                best = c if c.score < best.score else best
+    factor, step = 1.7, 0.25
+    for _ in range(3):
+        for _move in range(4):  # to the best of the four neighbours until none is better (at most 4 moves)
+            b0 = best.structure.shape[0] * span
+            g0 = best.structure.shape[1] / best.structure.shape[0]
+            around = [cand(b, g) for b, g in ((b0 / factor, g0), (b0 * factor, g0), (b0, g0 - step), (b0, g0 + step))
+                      if -0.9 < g < 0.9]
+            nxt = _best([best, *around])
+            if nxt is best:
+                break
+            best = nxt
+        factor, step = math.sqrt(factor), 0.5 * step
     if inc is None or force:
         return best
     return _prefer(inc, best)
