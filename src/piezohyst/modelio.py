@@ -41,7 +41,9 @@ SCHEMA_NAME = "piezohyst.model"
 #: (prandtl-ishlinskii, bouc-wen) have the same layout and load unchanged. Version 3: a Bouc-Wen
 #: hysteresis may carry its operating range (``v_range``), which its inverse keeps to; a reader
 #: that dropped it would invert a model that is invertible only within it, so older readers refuse
-#: version 3 files. Versions 1 and 2 load unchanged.
+#: version 3 files. Versions 1 and 2 load unchanged. A file is written with the oldest version
+#: that holds what it carries (:func:`schema_version_for`): a model without an operating range is
+#: a version 2 file, which piezohyst 0.2 reads too.
 SCHEMA_VERSION = 3
 #: Deepest nesting a model file may have (wrappers hold models; nothing legitimate nests deeper).
 MAX_DEPTH = 32
@@ -74,7 +76,7 @@ def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
     if units:
         unit.update(units)
     doc: dict[str, Any] = {
-        "schema": f"{SCHEMA_NAME}/{SCHEMA_VERSION}",
+        "schema": f"{SCHEMA_NAME}/{schema_version_for(model.to_dict())}",
         "kind": kind,
         "producer": producer(),
         "units": unit,
@@ -89,6 +91,18 @@ def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
     if extra:
         doc["extra"] = extra
     return _clean(doc)
+
+
+def schema_version_for(params: Any) -> int:
+    """The oldest schema version that holds ``params`` (a model's ``to_dict()``): 3 where some
+    part carries an operating range (``v_range``), else 2."""
+    if isinstance(params, dict):
+        if params.get("v_range") is not None:
+            return 3
+        return max((schema_version_for(v) for v in params.values()), default=2)
+    if isinstance(params, (list, tuple)):
+        return max((schema_version_for(v) for v in params), default=2)
+    return 2
 
 
 def _check_finite(obj: Any, what: str, where: str = "") -> None:
