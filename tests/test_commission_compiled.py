@@ -120,6 +120,7 @@ def test_safe_tuning_hold_stops_on_its_check_as_python(controller, monkeypatch):
     the same states, compiled or not."""
     from piezohyst.control import compiled_loop
     from piezohyst.control.pid import PID
+    from piezohyst.control.tuning import hold_at_level
     from piezohyst.plant import GuardedPlant
 
     ctl = controller
@@ -136,25 +137,10 @@ def test_safe_tuning_hold_stops_on_its_check_as_python(controller, monkeypatch):
         if compiled:
             res = compiled_loop.run_hold(guard, ff, pid, **kw)
         else:
-            res = _python_hold(guard, ff, pid, **kw)
+            res = hold_at_level(guard, ff, pid, **kw)
         outs.append((res, dict(state), guard.sent, guard.last, pid.integral, _state(rig)))
     (a, sa, na, la, ia, ra), (b, sb, nb, lb, ib, rb) = outs
     assert a is None and b is None and sa == sb and na == nb and 0 < na < 400 and la == lb and ia == ib
     for key in ra:
         np.testing.assert_array_equal(ra[key], rb[key])
 
-
-def _python_hold(plant, ff, pid, *, n, level, add, check, e0, fb0, tol_e, tol_fb, vpu, state):
-    """tune_integral_safely's Python hold (its ``run``), for the comparison above."""
-    fbs = np.empty(n)
-    for k in range(n):
-        fb = pid.step(level - state["y"], state["sat"]) * vpu
-        u = ff.step(level) + fb + add
-        state["y"] = plant.step(u)
-        state["sat"] = plant.last_saturation
-        state["u_lo"] = min(state["u_lo"], plant.last)
-        state["u_hi"] = max(state["u_hi"], plant.last)
-        fbs[k] = fb
-        if check and (abs((level - state["y"]) - e0) > tol_e or abs(fb - fb0) > tol_fb):
-            return None
-    return fbs

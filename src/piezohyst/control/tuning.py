@@ -326,6 +326,28 @@ def _smooth(x: FloatArray, w: int) -> FloatArray:
     return np.convolve(np.concatenate([np.full(w // 2, x[0]), x, np.full(w - 1 - w // 2, x[-1])]), k, "valid")
 
 
+def hold_at_level(plant: Any, ff: Any, pid: Any, *, n: int, level: float, add: float, check: bool, e0: float,
+                  fb0: float, tol_e: float, tol_fb: float, vpu: float, state: dict[str, Any]) -> FloatArray | None:
+    """``n`` samples of :func:`tune_integral_safely`'s hold: integral feedback (``pid``, scaled by
+    ``vpu``) on the error to ``level``, plus the feedforward of ``level`` and ``add`` (the probe),
+    to the guarded ``plant``. The feedback's outputs, or None when ``check`` is on and the error or
+    the feedback moved further than ``tol_e`` / ``tol_fb`` from ``e0`` / ``fb0`` (the sample that
+    did is done). ``state`` (``y``, ``sat``, ``u_lo``, ``u_hi``) is carried from call to call.
+    :func:`piezohyst.control.compiled_loop.run_hold` is this loop compiled."""
+    fbs = np.empty(n)
+    for k in range(n):
+        fb = pid.step(level - state["y"], state["sat"]) * vpu
+        u = ff.step(level) + fb + add
+        state["y"] = plant.step(u)
+        state["sat"] = plant.last_saturation
+        state["u_lo"] = min(state["u_lo"], plant.last)
+        state["u_hi"] = max(state["u_hi"], plant.last)
+        fbs[k] = fb
+        if check and (abs((level - state["y"]) - e0) > tol_e or abs(fb - fb0) > tol_fb):
+            return None
+    return fbs
+
+
 def tune_integral_safely(
     plant: Any, feedforward: Any, model: Any, *, delay: int, level: float, volts_per_um: float,
     options: SafeTuningOptions | None = None,
@@ -415,23 +437,10 @@ def tune_integral_safely(
 
     def run(n: int, probe_on: bool, fb0: float, e0: float, check: bool) -> FloatArray | None:
         """n samples at the hold; the feedback's outputs, or None if the trial had to stop."""
-        tol_e, tol_fb = 4 * y_probe + 10 * noise, 4 * probe
-        fast = run_hold(plant, ff, pid, n=n, level=level, add=probe if probe_on else 0.0, check=check, e0=e0,
-                        fb0=fb0, tol_e=tol_e, tol_fb=tol_fb, vpu=volts_per_um, state=state)
-        if fast is not NotImplemented:  # the same loop, compiled
-            return fast  # type: ignore[no-any-return]
-        fbs = np.empty(n)
-        for k in range(n):
-            fb = pid.step(level - state["y"], state["sat"]) * volts_per_um
-            u = ff.step(level) + fb + (probe if probe_on else 0.0)
-            state["y"] = plant.step(u)
-            state["sat"] = plant.last_saturation
-            state["u_lo"] = min(state["u_lo"], plant.last)
-            state["u_hi"] = max(state["u_hi"], plant.last)
-            fbs[k] = fb
-            if check and (abs((level - state["y"]) - e0) > tol_e or abs(fb - fb0) > tol_fb):
-                return None
-        return fbs
+        kw = dict(n=n, level=level, add=probe if probe_on else 0.0, check=check, e0=e0, fb0=fb0,
+                  tol_e=4 * y_probe + 10 * noise, tol_fb=4 * probe, vpu=volts_per_um, state=state)
+        fast = run_hold(plant, ff, pid, **kw)  # the same loop, compiled, where the parts have kernels
+        return hold_at_level(plant, ff, pid, **kw) if fast is NotImplemented else fast  # type: ignore[no-any-return]
 
     def trial(ki: float) -> bool:
         """Probe the loop at gain ki; True when it is well damped."""
