@@ -38,3 +38,24 @@ def test_normal_equations_same_compiled_and_from_cache(tmp_path):
     assert any((tmp_path / "numba-cache").rglob("*.nbi")), "the first run wrote no cache"
     compiled, cached = (dict(line.split() for line in run.stdout.splitlines()) for run in runs)
     assert compiled == cached
+
+
+def test_a_fits_residual_is_strictly_ordered_on_noisy_inputs():
+    """On a noisy command (the dense path) fit_pi's RMSE comes from pi_step's strict loop, not
+    from the reassociated dense kernel that simulate uses for speed."""
+    import numpy as np
+
+    import piezohyst as ph
+    from piezohyst.models.play import pi_simulate_dense, pi_simulate_strict, prefers_events
+
+    rng = np.random.default_rng(11)
+    u = rng.uniform(0.0, 100.0, 4000)
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(8, 100.0), rng.uniform(0.01, 0.1, 8))
+    y = true.simulate(u) + 1e-3 * rng.standard_normal(u.size)
+    fit = ph.fit_pi(u, y, n=8, u_max=100.0)
+    m = fit.model
+    assert not prefers_events(u, m.thresholds)
+    strict = pi_simulate_dense(u, m.thresholds, m.weights, np.array(m.initial_state), m.input_offset, m.offset)
+    np.testing.assert_array_equal(
+        pi_simulate_strict(u, m.thresholds, m.weights, np.array(m.initial_state), m.input_offset, m.offset), strict)
+    assert fit.rmse == float(np.sqrt(np.mean((y - strict) ** 2)))

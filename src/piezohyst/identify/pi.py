@@ -26,7 +26,7 @@ import numpy as np
 from .._numba import njit
 from .._validation import FloatArray, as_scalar
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
-from ..models.play import GramStats, _gram_stats, default_chunk_rows, pi_gram, play_outputs
+from ..models.play import GramStats, _gram_stats, default_chunk_rows, pi_gram, pi_simulate_strict, play_outputs
 from ..pso import pso_minimize, swarm_best_update, swarm_move
 from .lsq import bounded_lstsq_gram, bounded_lstsq_gram_many
 from .result import FitResult, paired_signals as _pair, unpack_data
@@ -305,7 +305,9 @@ def fit_pi(
         info["weight_bounds"] = [float(lo), float(hi)]
 
     model = PrandtlIshlinskii(r, w, offset=offset)
-    resid = ys - model.simulate(us)  # the event-driven kernel: no (N, n) matrix, exact residual
+    # no (N, n) matrix, and the same residual in every process (a fleet's workers, this one)
+    resid = ys - pi_simulate_strict(np.ascontiguousarray(us, dtype=np.float64), model.thresholds, model.weights,
+                                    np.array(model.initial_state), model.input_offset, model.offset)
     rmse = float(np.sqrt(np.mean(resid**2)))
     return FitResult(model=model, rmse=rmse, method=method, n_samples=int(us.size),
                      time_s=time.perf_counter() - t0, nit=nit, nfev=nfev, history=history,

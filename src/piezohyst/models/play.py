@@ -437,6 +437,18 @@ def prefers_events(u: FloatArray, r: FloatArray) -> bool:  # pragma: no cover - 
 
 
 @njit
+def pi_simulate_strict(
+    u: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float
+) -> FloatArray:  # pragma: no cover - compiled
+    """:func:`pi_simulate` with every sum in the order the code gives it: the event-driven kernel,
+    or the dense loop of :func:`pi_step` (not the reassociated one). The same numbers in every
+    process, whatever the optimiser did: what a fit's residual (its RMSE) is computed with."""
+    if prefers_events(u, r):
+        return pi_simulate_events(u, r, w, z, in_off, out_off)
+    return pi_simulate_dense(u, r, w, z, in_off, out_off)
+
+
+@njit
 def pi_simulate(
     u: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float
 ) -> FloatArray:  # pragma: no cover - compiled
