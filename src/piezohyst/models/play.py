@@ -571,36 +571,82 @@ _GRAM_BLOCK = 64
 # order was the optimiser's: a process that compiled the kernels and one that loaded them from
 # numba's cache differed in the last bits of Z'y.)
 @njit
-def _sum4(x: FloatArray, p: int, n: int) -> float:  # pragma: no cover - compiled
-    """``x[p] + ... + x[p + n - 1]`` in four lanes (above)."""
+def _sum4(x: FloatArray) -> float:  # pragma: no cover - compiled
+    """The sum of ``x`` in four lanes (above). Indices from ``range``, on a slice: numba then
+    knows them non-negative and checks no wrap-around (an offset index was twice as slow)."""
+    n = x.shape[0]
     a0 = a1 = a2 = a3 = 0.0
-    k = 0
-    while k + 4 <= n:
-        a0 += x[p + k]
-        a1 += x[p + k + 1]
-        a2 += x[p + k + 2]
-        a3 += x[p + k + 3]
-        k += 4
-    while k < n:
-        a0 += x[p + k]
-        k += 1
+    m = n // 4
+    for b in range(m):
+        k = 4 * b
+        a0 += x[k]
+        a1 += x[k + 1]
+        a2 += x[k + 2]
+        a3 += x[k + 3]
+    for k in range(4 * m, n):
+        a0 += x[k]
     return (a0 + a1) + (a2 + a3)
 
 
 @njit
-def _dot4(x: FloatArray, p: int, v: FloatArray, q: int, n: int) -> float:  # pragma: no cover - compiled
-    """``sum_k x[p + k] v[q + k]`` over k < n, in four lanes (above)."""
+def _dot4(x: FloatArray, v: FloatArray) -> float:  # pragma: no cover - compiled
+    """``sum_k x[k] v[k]`` (same lengths) in four lanes, as :func:`_sum4`."""
+    n = x.shape[0]
     a0 = a1 = a2 = a3 = 0.0
-    k = 0
-    while k + 4 <= n:
-        a0 += x[p + k] * v[q + k]
-        a1 += x[p + k + 1] * v[q + k + 1]
-        a2 += x[p + k + 2] * v[q + k + 2]
-        a3 += x[p + k + 3] * v[q + k + 3]
-        k += 4
-    while k < n:
-        a0 += x[p + k] * v[q + k]
-        k += 1
+    m = n // 4
+    for b in range(m):
+        k = 4 * b
+        a0 += x[k] * v[k]
+        a1 += x[k + 1] * v[k + 1]
+        a2 += x[k + 2] * v[k + 2]
+        a3 += x[k + 3] * v[k + 3]
+    for k in range(4 * m, n):
+        a0 += x[k] * v[k]
+    return (a0 + a1) + (a2 + a3)
+
+
+@njit
+def _centred_sums4(u: FloatArray, c: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """``sum_k (u[k] - c)`` and ``sum_k (u[k] - c)^2``, each in four lanes, as :func:`_sum4`."""
+    n = u.shape[0]
+    a0 = a1 = a2 = a3 = 0.0
+    b0 = b1 = b2 = b3 = 0.0
+    m = n // 4
+    for b in range(m):
+        k = 4 * b
+        v0 = u[k] - c
+        v1 = u[k + 1] - c
+        v2 = u[k + 2] - c
+        v3 = u[k + 3] - c
+        a0 += v0
+        a1 += v1
+        a2 += v2
+        a3 += v3
+        b0 += v0 * v0
+        b1 += v1 * v1
+        b2 += v2 * v2
+        b3 += v3 * v3
+    for k in range(4 * m, n):
+        v0 = u[k] - c
+        a0 += v0
+        b0 += v0 * v0
+    return (a0 + a1) + (a2 + a3), (b0 + b1) + (b2 + b3)
+
+
+@njit
+def _centred_dot4(u: FloatArray, c: float, y: FloatArray) -> float:  # pragma: no cover - compiled
+    """``sum_k (u[k] - c) y[k]`` (same lengths) in four lanes, as :func:`_sum4`."""
+    n = u.shape[0]
+    a0 = a1 = a2 = a3 = 0.0
+    m = n // 4
+    for b in range(m):
+        k = 4 * b
+        a0 += (u[k] - c) * y[k]
+        a1 += (u[k + 1] - c) * y[k + 1]
+        a2 += (u[k + 2] - c) * y[k + 2]
+        a3 += (u[k + 3] - c) * y[k + 3]
+    for k in range(4 * m, n):
+        a0 += (u[k] - c) * y[k]
     return (a0 + a1) + (a2 + a3)
 
 
@@ -625,11 +671,13 @@ def _gram_into(
                 buf[i, k] = zi
         for i in range(m):
             bi = buf[i]
-            colsum[i] += _sum4(bi, 0, nb)
+            bk = bi[:nb]
+            colsum[i] += _sum4(bk)
             for q in range(nd):
-                zty[i, q] += _dot4(bi, 0, y, a + delays[q], nb)
+                o = a + delays[q]
+                zty[i, q] += _dot4(bk, y[o:o + nb])
             for j in range(i, m):
-                gram[i, j] += _dot4(bi, 0, buf[j], 0, nb)
+                gram[i, j] += _dot4(bk, buf[j, :nb])
 
 
 # -- event-driven normal equations ---------------------------------------------------------------
@@ -667,53 +715,17 @@ def _run_sums(u: FloatArray, y: FloatArray, delays: Any, p: int, q: int, c: floa
     only if ``glued``: nothing moves with the input otherwise), each in four lanes (``_sum4``)."""
     nd = delays.shape[0]
     n = q - p
+    uu = u[p:q]
     sv = svv = 0.0
     if glued:
-        a0 = a1 = a2 = a3 = 0.0
-        b0 = b1 = b2 = b3 = 0.0
-        k = 0
-        while k + 4 <= n:
-            v0 = u[p + k] - c
-            v1 = u[p + k + 1] - c
-            v2 = u[p + k + 2] - c
-            v3 = u[p + k + 3] - c
-            a0 += v0
-            a1 += v1
-            a2 += v2
-            a3 += v3
-            b0 += v0 * v0
-            b1 += v1 * v1
-            b2 += v2 * v2
-            b3 += v3 * v3
-            k += 4
-        while k < n:
-            v0 = u[p + k] - c
-            a0 += v0
-            b0 += v0 * v0
-            k += 1
-        sv = (a0 + a1) + (a2 + a3)
-        svv = (b0 + b1) + (b2 + b3)
+        sv, svv = _centred_sums4(uu, c)
     sums[0] = sv
     sums[1] = svv
     for t in range(nd):
         o = p + delays[t]
-        sy = _sum4(y, o, n)
-        svy = 0.0
-        if glued:
-            a0 = a1 = a2 = a3 = 0.0
-            k = 0
-            while k + 4 <= n:
-                a0 += (u[p + k] - c) * y[o + k]
-                a1 += (u[p + k + 1] - c) * y[o + k + 1]
-                a2 += (u[p + k + 2] - c) * y[o + k + 2]
-                a3 += (u[p + k + 3] - c) * y[o + k + 3]
-                k += 4
-            while k < n:
-                a0 += (u[p + k] - c) * y[o + k]
-                k += 1
-            svy = (a0 + a1) + (a2 + a3)
-        sums[2 + t] = sy
-        sums[2 + nd + t] = svy
+        yy = y[o:o + n]
+        sums[2 + t] = _sum4(yy)
+        sums[2 + nd + t] = _centred_dot4(uu, c, yy) if glued else 0.0
 
 
 @njit
@@ -868,15 +880,15 @@ def _y_sums(y: FloatArray, delays: Any) -> tuple[FloatArray, FloatArray]:  # pra
     """``1'y[d:]`` and ``y[d:]'y[d:]`` for every delay: the whole record's sums less those of its
     first ``d`` samples, in four lanes (``_sum4``; compiled: numpy's dot goes to a threaded BLAS,
     whose spinning costs this thread more than the sum itself on a busy machine)."""
-    n = y.shape[0]
-    s1 = _sum4(y, 0, n)
-    s2 = _dot4(y, 0, y, 0, n)
+    s1 = _sum4(y)
+    s2 = _dot4(y, y)
     nd = delays.shape[0]
     ysum = np.empty(nd)
     yty = np.empty(nd)
     for t in range(nd):
-        ysum[t] = s1 - _sum4(y, 0, delays[t])
-        yty[t] = s2 - _dot4(y, 0, y, 0, delays[t])
+        head = y[:delays[t]]
+        ysum[t] = s1 - _sum4(head)
+        yty[t] = s2 - _dot4(head, head)
     return ysum, yty
 
 
