@@ -585,24 +585,14 @@ def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, p
     chunks of ``chunk`` samples, reading the correction ``corr_for(k0, k1)`` gives for each, with
     ``end_of_chunk(k)`` (the learning) after each whole one; the states of the guard, the plant, the feedforward and the PID are left as the Python loop leaves
     them. False when the kernel gave up (the run must be made again in Python, from the start)."""
-    from .control.compiled_loop import COMPLETED, _guarded_loop
+    from .control.compiled_loop import COMPLETED, _guarded_loop, limits_arrays, limits_back, pid_arrays, pid_back
 
     if ff_args is None:
         return False
     n = r.size
-    lo, hi = ff.u_range if ff.u_range is not None else (-math.inf, math.inf)
-    ff_lim = np.array([lo, hi, ff.max_slew if ff.max_slew is not None else math.inf])
-    last = ff._u_last
-    ff_lim_state = np.array([0.0 if last is None else 1.0, 0.0 if last is None else last, float(ff.limited)])
-    if pid is not None:
-        pid_g = np.array([pid.kp, pid.ki, pid.dt, pid._a, pid._b, pid.u_min, pid.u_max])
-        pid_state = np.array([pid.integral, pid._d, pid._e_prev, 1.0 if pid._first else 0.0])
-    else:
-        pid_g, pid_state = np.zeros(7), np.zeros(4)
-    lim = guard.limits
-    g = np.array([lim.low, lim.high, lim.max_step, guard._tol])
-    g_state = np.array([guard.last, guard.clipped, guard.slew_limited, guard.largest_step, guard.last_saturation,
-                        guard.sent], dtype=np.float64)
+    ff_lim, ff_lim_state = limits_arrays(ff)
+    pid_g, pid_state = pid_arrays(pid)
+    g, g_state = guard.kernel_arrays()
     wv = np.array([watch.lo_u, watch.hi_u, watch.limit, watch.span, watch.settle, watch.WINDOW, watch.CHATTER],
                   dtype=np.float64)
     w_state = np.array([watch.n_lo, watch.n_hi], dtype=np.float64)
@@ -626,15 +616,10 @@ def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, p
         if end_of_chunk is not None and k1 - k0 == chunk:
             end_of_chunk(k1 - 1)
     # the objects' states as the Python loop leaves them
-    guard.last, guard.largest_step = float(g_state[0]), float(g_state[3])
-    guard.clipped, guard.slew_limited = int(g_state[1]), int(g_state[2])
-    guard.last_saturation, guard.sent = int(g_state[4]), int(g_state[5])
+    guard.set_kernel_state(g_state)
     watch.n_lo, watch.n_hi = int(w_state[0]), int(w_state[1])
-    ff._u_last = float(ff_lim_state[1]) if ff_lim_state[0] != 0.0 else None
-    ff.limited = int(ff_lim_state[2])
-    if pid is not None:
-        pid.integral, pid._d, pid._e_prev = (float(v) for v in pid_state[:3])
-        pid._first = bool(pid_state[3] != 0.0)
+    limits_back(ff, ff_lim_state)
+    pid_back(pid, pid_state)
     return True
 
 

@@ -311,14 +311,24 @@ class GuardedPlant:
     def guard_table(self, u: Any) -> FloatArray:
         """The table the guard would send for ``u`` (and its counts updated as if sent)."""
         x = as_signal("u", u)  # finite, so _guard would raise for none of it: compiled, the same
+        g, state = self.kernel_arrays()
+        out = _guard_table(x, g[0], g[1], g[2], g[3], state)
+        self.set_kernel_state(state)
+        return out
+
+    def kernel_arrays(self) -> tuple[FloatArray, FloatArray]:
+        """The guard as compiled kernels take it (:func:`guard_step`): ``[low, high, max_step,
+        tol]`` and the state ``[last, clipped, slew_limited, largest_step, last_saturation, sent]``."""
         lim = self.limits
-        state = np.array([self.last, self.clipped, self.slew_limited, self.largest_step, self.last_saturation,
-                          self.sent], dtype=np.float64)
-        out = _guard_table(x, lim.low, lim.high, lim.max_step, self._tol, state)
+        return (np.array([lim.low, lim.high, lim.max_step, self._tol]),
+                np.array([self.last, self.clipped, self.slew_limited, self.largest_step, self.last_saturation,
+                          self.sent], dtype=np.float64))
+
+    def set_kernel_state(self, state: FloatArray) -> None:
+        """Take back the state of :meth:`kernel_arrays` after a kernel ran."""
         self.last, self.largest_step = float(state[0]), float(state[3])
         self.clipped, self.slew_limited = int(state[1]), int(state[2])
         self.last_saturation, self.sent = int(state[4]), int(state[5])
-        return out
 
     def step(self, u: float) -> float:
         """Guard ``u`` and apply it for one sample (a :class:`Plant`); the measured µm."""

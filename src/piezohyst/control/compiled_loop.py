@@ -175,6 +175,38 @@ def _closed_loop(r: FloatArray, y: FloatArray, u: FloatArray,
     return COMPLETED
 
 
+def limits_arrays(ff: Any) -> tuple[FloatArray, FloatArray]:
+    """A compensator's output limits as :func:`output_limits` takes them (none for ``None``)."""
+    if ff is None:
+        return np.array([-math.inf, math.inf, math.inf]), np.zeros(3)
+    lo, hi = ff.u_range if ff.u_range is not None else (-math.inf, math.inf)
+    last = ff._u_last
+    return (np.array([lo, hi, ff.max_slew if ff.max_slew is not None else math.inf]),
+            np.array([0.0 if last is None else 1.0, 0.0 if last is None else last, float(ff.limited)]))
+
+
+def limits_back(ff: Any, state: FloatArray) -> None:
+    """Take back the limits' state of :func:`limits_arrays` after a kernel ran."""
+    if ff is not None:
+        ff._u_last = float(state[1]) if state[0] != 0.0 else None
+        ff.limited = int(state[2])
+
+
+def pid_arrays(pid: Any) -> tuple[FloatArray, FloatArray]:
+    """A :class:`PID` as :func:`pid_step` takes it (zeros for ``None``)."""
+    if pid is None:
+        return np.zeros(7), np.zeros(4)
+    return (np.array([pid.kp, pid.ki, pid.dt, pid._a, pid._b, pid.u_min, pid.u_max]),
+            np.array([pid.integral, pid._d, pid._e_prev, 1.0 if pid._first else 0.0]))
+
+
+def pid_back(pid: Any, state: FloatArray) -> None:
+    """Take back the PID's state of :func:`pid_arrays` after a kernel ran."""
+    if pid is not None:
+        pid.integral, pid._d, pid._e_prev = (float(v) for v in state[:3])
+        pid._first = bool(state[3] != 0.0)
+
+
 def _ff_spec(ff: Any) -> tuple[int, FloatArray, FloatArray, FloatArray, FloatArray] | None:
     """The kernel's view of a feedforward it knows (exact types: a subclass may override a step)."""
     if ff is None:
@@ -202,22 +234,8 @@ def run_compiled(plant: Any, r: FloatArray, feedforward: Any, feedback: Any, *, 
     spec = _ff_spec(feedforward)
     assert spec is not None
     kind, ff_a, ff_b, ff_state, ff_s = spec
-    if feedforward is not None:
-        lo, hi = feedforward.u_range if feedforward.u_range is not None else (-math.inf, math.inf)
-        ff_lim = np.array([lo, hi, feedforward.max_slew if feedforward.max_slew is not None else math.inf])
-        last = feedforward._u_last
-        ff_lim_state = np.array([0.0 if last is None else 1.0, 0.0 if last is None else last,
-                                 float(feedforward.limited)])
-    else:
-        ff_lim = np.array([-math.inf, math.inf, math.inf])
-        ff_lim_state = np.zeros(3)
-    if feedback is not None:
-        pid_g = np.array([feedback.kp, feedback.ki, feedback.dt, feedback._a, feedback._b, feedback.u_min,
-                          feedback.u_max])
-        pid_state = np.array([feedback.integral, feedback._d, feedback._e_prev, 1.0 if feedback._first else 0.0])
-    else:
-        pid_g = np.zeros(7)
-        pid_state = np.zeros(4)
+    ff_lim, ff_lim_state = limits_arrays(feedforward)
+    pid_g, pid_state = pid_arrays(feedback)
     wv = np.array([watch.lo_u, watch.hi_u, watch.limit, watch.span, watch.settle, watch.WINDOW, watch.CHATTER],
                   dtype=np.float64)
     n = r.size
@@ -231,12 +249,8 @@ def run_compiled(plant: Any, r: FloatArray, feedforward: Any, feedback: Any, *, 
     if k != COMPLETED:
         return None
     plant._n += n
-    if feedforward is not None:
-        feedforward._u_last = float(ff_lim_state[1]) if ff_lim_state[0] != 0.0 else None
-        feedforward.limited = int(ff_lim_state[2])
-    if feedback is not None:
-        feedback.integral, feedback._d, feedback._e_prev = (float(v) for v in pid_state[:3])
-        feedback._first = bool(pid_state[3] != 0.0)
+    limits_back(feedforward, ff_lim_state)
+    pid_back(feedback, pid_state)
     return y, u
 
 
@@ -398,16 +412,9 @@ def run_hold(guard: Any, ff: Any, pid: Any, *, n: int, level: float, add: float,
     ff_args = ff._pi_kernel_args()
     if ff_args is None:
         return NotImplemented
-    lo, hi = ff.u_range if ff.u_range is not None else (-math.inf, math.inf)
-    ff_lim = np.array([lo, hi, ff.max_slew if ff.max_slew is not None else math.inf])
-    last = ff._u_last
-    ff_lim_state = np.array([0.0 if last is None else 1.0, 0.0 if last is None else last, float(ff.limited)])
-    pid_g = np.array([pid.kp, pid.ki, pid.dt, pid._a, pid._b, pid.u_min, pid.u_max])
-    pid_state = np.array([pid.integral, pid._d, pid._e_prev, 1.0 if pid._first else 0.0])
-    lim = guard.limits
-    g = np.array([lim.low, lim.high, lim.max_step, guard._tol])
-    g_state = np.array([guard.last, guard.clipped, guard.slew_limited, guard.largest_step, guard.last_saturation,
-                        guard.sent], dtype=np.float64)
+    ff_lim, ff_lim_state = limits_arrays(ff)
+    pid_g, pid_state = pid_arrays(pid)
+    g, g_state = guard.kernel_arrays()
     loop_state = np.array([state["y"], state["sat"], state["u_lo"], state["u_hi"], 0.0, 0.0])
     fbs = np.empty(n)
     args: tuple[Any, ...] = (n, float(level), float(add), bool(check), float(e0), float(fb0), float(tol_e),
@@ -418,13 +425,9 @@ def run_hold(guard: Any, ff: Any, pid: Any, *, n: int, level: float, add: float,
     # the objects' states as the Python loop leaves them
     why = int(loop_state[4]) if k != COMPLETED else 0
     rig._n += int(g_state[5]) - guard.sent
-    guard.last, guard.largest_step = float(g_state[0]), float(g_state[3])
-    guard.clipped, guard.slew_limited = int(g_state[1]), int(g_state[2])
-    guard.last_saturation, guard.sent = int(g_state[4]), int(g_state[5])
-    ff._u_last = float(ff_lim_state[1]) if ff_lim_state[0] != 0.0 else None
-    ff.limited = int(ff_lim_state[2])
-    pid.integral, pid._d, pid._e_prev = (float(v) for v in pid_state[:3])
-    pid._first = bool(pid_state[3] != 0.0)
+    guard.set_kernel_state(g_state)
+    limits_back(ff, ff_lim_state)
+    pid_back(pid, pid_state)
     state["y"], state["sat"] = float(loop_state[0]), int(loop_state[1])
     state["u_lo"], state["u_hi"] = float(loop_state[2]), float(loop_state[3])
     if k == COMPLETED:
