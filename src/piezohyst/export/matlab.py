@@ -6,7 +6,7 @@
   nested structs with their own ``kind`` and ``parameters``), ``units``;
 * ``inverse`` - struct: the inverse's state-free parameters where the kind has them (the inverse
   P-I model of eqs. 12-15, the rate-dependent recursion's factors, the output map, the Bouc-Wen
-  constants of eq. 10, the Preisach grid the numerical inverse bisects on), from the
+  constants of eq. 10, the Preisach grid the numerical inverse solves on), from the
   compensator's ``inverse_parameters()``; ``role`` says how they are used;
 * ``reference`` - struct: ``t_s``, ``x_d_um``, ``u_V``: a reference trajectory over the model's
   range and the command piezohyst computes for it (with the range clip), to check an

@@ -30,11 +30,19 @@ output is linear in ``mu``, ``slope`` and ``offset``: constrained least squares 
 **The inverse is numerical** (there is no closed form for a Preisach model): for each desired
 output the compensator solves ``f(v) = target`` for the increasing, piecewise-linear ``f`` that
 the current memory state defines. Because ``f`` rises at least at ``slope`` per volt, the
-solution lies within ``|target - f(v_prev)| / slope`` of the previous input: that interval is
-bisected (:data:`BISECTION_STEPS` halvings, then one secant step inside the last piece). The
-result's input error is below ``1e-12`` of the bracket (in practice below 1e-12 V for
-0-100 V stages), so the output error is below ``1e-12 V x`` the largest slope - far below any
-sensor's noise. ``tests/test_model_kinds.py`` checks ``model(compensator(x_d)) == x_d`` to 1e-9.
+solution lies within ``|target - f(v_prev)| / slope`` of the previous input. Within that bracket
+the solver takes Newton steps, each one pass over the hysterons that gives ``f`` and its slopes
+just above and below the point (:func:`preisach_value_slopes`). On a linear piece a Newton step
+lands on the root, so a sample whose step crosses no kink of ``f`` costs two passes (the previous
+input's and the root's), and the input moves little from sample to sample. A step that would
+leave the bracket, or one after a step that did not halve the residual, goes to the bracket's
+middle instead, so the solve ends (at most :data:`SOLVE_STEPS` passes, at the best point found).
+It stops when the residual is at the rounding of its terms (``64 eps`` of their sum). The solver
+it replaced bisected the bracket 60 times: 60 passes for every sample. Measured on a random
+model driven by a sinusoid with a small fast dither (reversals every 18 samples): 2.2 passes
+per sample, 3.0 / 4.3 / 8.7 µs per compensator step with 8 / 16 / 30 levels (the bisection:
+12.7 / 31 / 106 µs), the output's error below 1e-13 µm. ``tests/test_model_kinds.py`` checks
+``model(compensator(x_d)) == x_d`` to 1e-9.
 """
 
 from __future__ import annotations
@@ -49,8 +57,11 @@ from .._numba import njit
 from .._validation import FloatArray, as_scalar, as_signal, frozen
 from .base import InverseCompensator, check_dt, register_kind
 
-#: Halvings of the inverse's bracket before the final secant step.
-BISECTION_STEPS = 60
+#: Most passes of the inverse's bracketed Newton solve (module docstring); it ends at the best
+#: point found if the residual has not reached rounding by then.
+SOLVE_STEPS = 60
+#: The earlier name of :data:`SOLVE_STEPS` (the solver bisected).
+BISECTION_STEPS = SOLVE_STEPS
 
 
 def grid_size(n: int) -> int:
@@ -144,47 +155,82 @@ def preisach_simulate(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_de
 
 
 @njit
+def preisach_value_slopes(v: float, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
+                          mu: FloatArray) -> tuple[float, float, float]:  # pragma: no cover
+    """``sum mu z`` after a step to ``v`` from state ``z`` (as :func:`preisach_value`), and its
+    slopes in ``v`` just above and just below ``v``: the weights of the hysterons that a move
+    that way drags along their ramps, times ``inv_delta``. One pass over the hysterons."""
+    acc = 0.0
+    d_up = 0.0
+    d_down = 0.0
+    for h in range(z.shape[0]):
+        ua = (v - alpha[h]) * inv_delta + 1.0
+        da = (v - beta[h]) * inv_delta
+        up = _ramp(ua)
+        down = _ramp(da)
+        zh = z[h]
+        if zh <= up:  # held at (or pushed to) its rising ramp: moves with a rise of v on the ramp
+            if ua >= 0.0 and ua < 1.0:
+                d_up += mu[h]
+            if zh < up and ua > 0.0 and ua <= 1.0:
+                d_down += mu[h]
+            if zh < up:
+                zh = up
+        if zh >= down:  # at (or pushed to) its falling ramp: moves with a fall of v on the ramp
+            if da > 0.0 and da <= 1.0:
+                d_down += mu[h]
+            if zh > down and da >= 0.0 and da < 1.0:
+                d_up += mu[h]
+            if zh > down:
+                zh = down
+        acc += mu[h] * zh
+    return acc, d_up * inv_delta, d_down * inv_delta
+
+
+@njit
 def preisach_solve(target: float, v_prev: float, alpha: FloatArray, beta: FloatArray, inv_delta: float,
                    z: FloatArray, mu: FloatArray, slope: float, offset: float, steps: int) -> float:  # pragma: no cover
     """The input v whose step from state ``z`` gives ``target``; advances ``z`` to it.
 
     ``f(v) = offset + slope v + preisach_value(v)`` is increasing with slope >= ``slope`` > 0,
-    so the root lies between ``v_prev`` and ``v_prev + (target - f(v_prev)) / slope``.
+    so the root lies between ``v_prev`` and ``v_prev + (target - f(v_prev)) / slope``: Newton
+    steps inside that bracket, each one pass (:func:`preisach_value_slopes`); a step that leaves
+    the bracket, or follows one that did not halve the residual, goes to the bracket's middle
+    instead (module docstring). Ends when the residual is at the rounding of its terms, when a
+    step no longer moves, or after ``steps`` passes (at the best point found).
     """
-    f0 = offset + slope * v_prev + preisach_value(v_prev, alpha, beta, inv_delta, z, mu)
-    gap = target - f0
-    if gap == 0.0:
-        v = v_prev
-    else:
-        a = v_prev
-        b = v_prev + gap / slope
-        fa = f0 - target
-        fb = offset + slope * b + preisach_value(b, alpha, beta, inv_delta, z, mu) - target
-        if fa > 0.0:  # keep a on the low side
-            a, b = b, a
-            fa, fb = fb, fa
+    acc, d_up, d_down = preisach_value_slopes(v_prev, alpha, beta, inv_delta, z, mu)
+    fx = offset + slope * v_prev + acc - target
+    v = v_prev
+    if fx != 0.0:
+        end = v_prev - fx / slope
+        lo = min(v_prev, end)  # f(lo) <= target <= f(hi)
+        hi = max(v_prev, end)
+        x = v_prev
+        dx = slope + (d_up if fx < 0.0 else d_down)
+        halve = False
+        best, fbest = x, abs(fx)
         for _ in range(steps):
-            m = 0.5 * (a + b)
-            fm = offset + slope * m + preisach_value(m, alpha, beta, inv_delta, z, mu) - target
-            if fm == 0.0:
-                a = m
-                b = m
-                fa = 0.0
-                fb = 0.0
+            xn = 0.5 * (lo + hi) if halve else x - fx / dx
+            if not (xn > lo and xn < hi):
+                xn = 0.5 * (lo + hi)
+            if xn == x:
                 break
-            if fm < 0.0:
-                a = m
-                fa = fm
+            acc, d_up, d_down = preisach_value_slopes(xn, alpha, beta, inv_delta, z, mu)
+            fn = offset + slope * xn + acc - target
+            if abs(fn) < fbest:
+                best, fbest = xn, abs(fn)
+            if abs(fn) <= 64.0 * 2.220446049250313e-16 * (abs(target) + abs(offset) + abs(slope * xn) + abs(acc)):
+                break
+            if fn < 0.0:
+                lo = xn
             else:
-                b = m
-                fb = fm
-        # one secant step inside the final bracket (exact when it holds one linear piece)
-        if fb != fa:
-            v = a - fa * (b - a) / (fb - fa)
-            if not (v >= min(a, b) and v <= max(a, b)):
-                v = 0.5 * (a + b)
-        else:
-            v = a
+                hi = xn
+            halve = abs(fn) > 0.5 * abs(fx)
+            x = xn
+            fx = fn
+            dx = slope + (d_up if fn < 0.0 else d_down)
+        v = best
     preisach_step(v, alpha, beta, inv_delta, z)
     return v
 
@@ -385,16 +431,17 @@ class PreisachInverse:
     def step(self, target: float) -> float:
         m = self.model
         self._v = float(preisach_solve(float(target), self._v, self._a, self._b, self._inv_d, self._z,
-                                       m.weights, self._s, m.offset, BISECTION_STEPS))
+                                       m.weights, self._s, m.offset, SOLVE_STEPS))
         return self._v
 
     def inverse_parameters(self) -> dict[str, Any]:
         """What :func:`preisach_solve` works with (the inverse is numerical, not a model)."""
         m = self.model
-        return {"role": "numerical inverse: solve offset + slope v + sum mu z(v) = x_d per sample by bisection",
+        return {"role": "numerical inverse: solve offset + slope v + sum mu z(v) = x_d per sample by bracketed "
+                        "Newton steps (exact on a linear piece of the branch)",
                 "alpha": np.array(self._a), "beta": np.array(self._b), "inv_delta": self._inv_d,
                 "mu": np.array(m.weights), "slope": self._s, "offset": m.offset,
-                "initial_state": m.initial_state(), "bisection_steps": BISECTION_STEPS}
+                "initial_state": m.initial_state(), "solve_steps": SOLVE_STEPS}
 
     def to_c(self, c: Any, prefix: str) -> str:
         """:func:`preisach_solve` as C99, operation for operation (see :meth:`Compensator.to_c`)."""
@@ -417,14 +464,33 @@ class PreisachInverse:
         if (zh < up) zh = up;
         if (zh > down) zh = down;"""
         c.function(f"""/* Preisach model on a triangular grid: {nh} hysterons */
-static double {value}(double v)
+/* sum mu z after a step to v, and its slopes just above and just below v (one pass) */
+static double {value}(double v, double *d_up, double *d_down)
 {{
     double acc = 0.0;
+    double su = 0.0;
+    double sd = 0.0;
     int h;
     for (h = 0; h < {nh}; ++h) {{
-{body}
+        const double ua = (v - {al}[h]) * {inv_d} + 1.0;
+        const double da = (v - {be}[h]) * {inv_d};
+        const double up = {ramp}(ua);
+        const double down = {ramp}(da);
+        double zh = {z}[h];
+        if (zh <= up) {{
+            if (ua >= 0.0 && ua < 1.0) su += {mu}[h];
+            if (zh < up && ua > 0.0 && ua <= 1.0) sd += {mu}[h];
+            if (zh < up) zh = up;
+        }}
+        if (zh >= down) {{
+            if (da > 0.0 && da <= 1.0) sd += {mu}[h];
+            if (zh > down && da >= 0.0 && da < 1.0) su += {mu}[h];
+            if (zh > down) zh = down;
+        }}
         acc += {mu}[h] * zh;
     }}
+    *d_up = su * {inv_d};
+    *d_down = sd * {inv_d};
     return acc;
 }}
 
@@ -437,46 +503,44 @@ static void {advance}(double v)
     }}
 }}
 
-/* the numerical inverse: bisection ({BISECTION_STEPS} halvings) and one secant step */
+/* the numerical inverse: bracketed Newton steps (at most {SOLVE_STEPS} passes), exact on a linear piece */
 static double {fn}(double target)
 {{
     const double v_prev = {vv};
-    const double f0 = {off} + {slope} * v_prev + {value}(v_prev);
-    const double gap = target - f0;
-    double v;
-    if (gap == 0.0) {{
-        v = v_prev;
-    }} else {{
-        double a = v_prev;
-        double b = v_prev + gap / {slope};
-        double fa = f0 - target;
-        double fb = {off} + {slope} * b + {value}(b) - target;
+    double d_up, d_down;
+    double acc = {value}(v_prev, &d_up, &d_down);
+    double fx = {off} + {slope} * v_prev + acc - target;
+    double v = v_prev;
+    if (fx != 0.0) {{
+        const double end = v_prev - fx / {slope};
+        double lo = (v_prev < end) ? v_prev : end;
+        double hi = (v_prev > end) ? v_prev : end;
+        double x = v_prev;
+        double dx = {slope} + ((fx < 0.0) ? d_up : d_down);
+        int halve = 0;
+        double best = x;
+        double fbest = fabs(fx);
         int it;
-        if (fa > 0.0) {{
-            double t = a; a = b; b = t;
-            t = fa; fa = fb; fb = t;
-        }}
-        for (it = 0; it < {BISECTION_STEPS}; ++it) {{
-            const double mid = 0.5 * (a + b);
-            const double fm = {off} + {slope} * mid + {value}(mid) - target;
-            if (fm == 0.0) {{
-                a = mid; b = mid; fa = 0.0; fb = 0.0;
-                break;
+        for (it = 0; it < {SOLVE_STEPS}; ++it) {{
+            double xn = halve ? 0.5 * (lo + hi) : x - fx / dx;
+            double fn;
+            if (!(xn > lo && xn < hi)) xn = 0.5 * (lo + hi);
+            if (xn == x) break;
+            acc = {value}(xn, &d_up, &d_down);
+            fn = {off} + {slope} * xn + acc - target;
+            if (fabs(fn) < fbest) {{
+                best = xn;
+                fbest = fabs(fn);
             }}
-            if (fm < 0.0) {{
-                a = mid; fa = fm;
-            }} else {{
-                b = mid; fb = fm;
-            }}
+            if (fabs(fn) <= 64.0 * 2.220446049250313e-16 * (fabs(target) + fabs({off}) + fabs({slope} * xn) + fabs(acc))) break;
+            if (fn < 0.0) lo = xn;
+            else hi = xn;
+            halve = fabs(fn) > 0.5 * fabs(fx);
+            x = xn;
+            fx = fn;
+            dx = {slope} + ((fn < 0.0) ? d_up : d_down);
         }}
-        if (fb != fa) {{
-            const double lo = (b < a) ? b : a;
-            const double hi = (b > a) ? b : a;
-            v = a - fa * (b - a) / (fb - fa);
-            if (!(v >= lo && v <= hi)) v = 0.5 * (a + b);
-        }} else {{
-            v = a;
-        }}
+        v = best;
     }}
     {advance}(v);
     {vv} = v;

@@ -42,6 +42,7 @@ from .._validation import FloatArray, as_scalar, as_signal, frozen
 from .base import Compensator, check_dt, kind_of, nested_from_dict, nested_to_dict, register_kind
 from .pi import PIStepper
 from .play import pi_step
+from .preisach import SOLVE_STEPS, PreisachInverse, preisach_solve
 
 
 @njit
@@ -95,6 +96,35 @@ def first_order_lag(x: FloatArray, a: float) -> FloatArray:
 def lag_factor(tau: float, dt: float) -> float:
     """``exp(-dt / tau)``; 0 for ``tau == 0`` (no lag)."""
     return math.exp(-dt / tau) if tau > 0 else 0.0
+
+
+@njit
+def _rate_preisach_inverse_run(x_d: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
+                               mu: FloatArray, slope: float, offset: float, steps: int, v_last: FloatArray,
+                               a: FloatArray, c: FloatArray, s: FloatArray, b: float,
+                               v_prev: FloatArray) -> FloatArray:  # pragma: no cover - compiled
+    """:class:`RateCompensator` over a whole trajectory when the static part is a Preisach model:
+    the Python step's arithmetic, operation for operation (``known``, the Newton solve of
+    :func:`~piezohyst.models.preisach.preisach_solve`, the lags, the input lag's inverse), in one
+    compiled call. Stops with NaN from the first sample whose solve target is not finite (the
+    caller then runs the Python steps, which raise there)."""
+    n = x_d.shape[0]
+    out = np.empty(n)
+    for k in range(n):
+        known = 0.0
+        for i in range(a.shape[0]):
+            known += c[i] * a[i] * s[i]
+        x = x_d[k] - known
+        if not math.isfinite(x):
+            out[k:] = math.nan
+            return out
+        v = preisach_solve(x, v_last[0], alpha, beta, inv_delta, z, mu, slope, offset, steps)
+        v_last[0] = v
+        for i in range(a.shape[0]):
+            s[i] = (1.0 - a[i]) * v + a[i] * s[i]
+        out[k] = v if b == 0.0 else (v - b * v_prev[0]) / (1.0 - b)
+        v_prev[0] = v
+    return out
 
 
 @register_kind("rate-dependent", "rate-dependent-pi", "rate-pi", "rate")
@@ -353,6 +383,18 @@ class RateCompensator(Compensator):
     def _command(self, x_d: FloatArray) -> FloatArray:
         args = self._pi_kernel_args()
         if args is None:
+            inv = self._inverse
+            if type(inv) is PreisachInverse:  # the Newton solves and the lags in one compiled call
+                m = self.model
+                v_last = np.array([inv._v])
+                out = _rate_preisach_inverse_run(
+                    np.ascontiguousarray(x_d, dtype=np.float64), inv._a, inv._b, inv._inv_d, inv._z,
+                    inv.model.weights, inv._s, inv.model.offset, SOLVE_STEPS, v_last, m._a, m.lag_weights, self._s,
+                    self._b, self._v_prev)
+                inv._v = float(v_last[0])
+                if not np.isnan(out).any():
+                    return out
+                self.reset()  # the sample where the stepper raises, from a fresh start
             return super()._command(x_d)
         out = _rate_pi_inverse_run(np.ascontiguousarray(x_d, dtype=np.float64), *args)
         if np.isnan(out).any():  # the sample where the stepper raises, from a fresh start
