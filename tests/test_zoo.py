@@ -1,6 +1,6 @@
 """Commissioning, model selection and feedforward across the plant zoo (issue 11, items 5 and 7).
 
-The zoo (:mod:`tests.plants.zoo`) holds six piezo-like stages of structures the project's models
+The zoo (:mod:`tests.plants.zoo`) holds seven piezo-like stages of structures the project's models
 do not share, 2-20 kHz, delays 0-5 samples, unipolar and bipolar, strokes 1.5-100 µm. Nothing is
 tuned on them. For each: ``commission`` chooses and fits a model on its own data, and the
 feedforward alone (``ctl.track(ref, feedback=False, learning=False)``) tracks 1, 3 and 5 Hz

@@ -230,6 +230,16 @@ def large_signal_slope_ratio(model: Any, dt: float, *, u_range: tuple[float, flo
     large-signal slope, not noise) is taken wherever the command moves; the ratio of its largest
     value to the steeper of the small-signal gains (the step responses' final values), at least 1.
     """
+    steepest = major_loop_steepest_slope(model, dt, u_range=u_range)
+    small = max(float(np.sum(h)) for h in impulse.values())
+    if not (math.isfinite(steepest) and small > 0):
+        return 1.0
+    return max(1.0, steepest / small)
+
+
+def major_loop_steepest_slope(model: Any, dt: float, *, u_range: tuple[float, float]) -> float:
+    """The steepest large-signal slope (µm per V) of ``model``'s major loop: the second of two
+    full-range 1 Hz cycles, the slope over 2 % of the range wherever the command moves."""
     lo, hi = u_range
     n = max(int(round(1.0 / dt)), 200)
     t = np.arange(2 * n) / n
@@ -239,11 +249,22 @@ def large_signal_slope_ratio(model: Any, dt: float, *, u_range: tuple[float, flo
     w = max(int(round(0.02 * n)), 1)
     du, dy = u[w:] - u[:-w], y[w:] - y[:-w]
     moving = np.abs(du) > 0.25 * np.abs(du).max()
-    steepest = float(np.max(dy[moving] / du[moving])) if moving.any() else 0.0
-    small = max(float(np.sum(h)) for h in impulse.values())
-    if not (math.isfinite(steepest) and small > 0):
-        return 1.0
-    return max(1.0, steepest / small)
+    return float(np.max(dy[moving] / du[moving])) if moving.any() else 0.0
+
+
+def reversal_chord_slope(model: Any, dt: float, *, u_level: float, u_range: tuple[float, float], step: float) -> float:
+    """The model's settled answer (µm per V) to a reversal of ``step`` volts at ``u_level``
+    (ramped to from rest, held, then stepped down): the slope a probe of that size sees there."""
+    lo, hi = u_range
+    n = max(int(round(0.05 / dt)), 20)
+    start = min(max(0.0, lo), hi)
+    k = np.arange(1, n + 1) / n
+    lead = np.concatenate([start + (u_level - start) * 0.5 * (1 - np.cos(np.pi * k)), np.full(n, u_level)])
+    runs = []
+    for du in (0.0, -step):
+        u = np.concatenate([lead, np.full(4 * n, u_level + du)])
+        runs.append(float(np.asarray(model.predict(u, dt if model.dynamic else None), dtype=np.float64)[-1]))
+    return (runs[0] - runs[1]) / step
 
 
 def integral_loop_response(impulse: dict[str, FloatArray], dt: float, *, delay: int, scale: float,
@@ -317,6 +338,27 @@ class SafeTuningOptions:
             raise ValueError("gain_step must be > 1, back_off >= 1 and overshoot_limit > 0")
         if not (isinstance(self.repeats, int) and self.repeats >= 1):
             raise ValueError(f"repeats must be a positive integer, got {self.repeats!r}")
+
+
+#: An oscillation grows under the feedback (:func:`tune_integral_safely`, step 2) when, in the last
+#: probe of a trial, the error's sample-to-sample RMS is more than ``RIPPLE_LIMIT`` times the
+#: feedforward-alone noise's and more than ``RIPPLE_GROWTH`` times the first probe's (noise alone:
+#: about 1 and 1 +- 0.15).
+RIPPLE_LIMIT = 2.0
+RIPPLE_GROWTH = 1.3
+#: Seconds the feedforward alone holds the stage after a trial whose oscillation grew.
+RING_DOWN_S = 0.5
+
+
+def _error_ripple(fbs: FloatArray, fb0: float, gain: float) -> float:
+    """The error's sample-to-sample RMS over the second half of a probe segment, read off the
+    integral feedback's outputs (``fb(k) - fb(k-1) = gain e(k)`` where the integral is not held at
+    a limit)."""
+    if not gain > 0 or fbs.size < 8:
+        return 0.0
+    e = np.diff(np.concatenate([[fb0], fbs])) / gain
+    half = e[e.size // 2:]
+    return float(np.std(np.diff(half)))
 
 
 def _smooth(x: FloatArray, w: int) -> FloatArray:
@@ -428,6 +470,7 @@ def tune_integral_safely(
     for k, x in enumerate(desired):
         ys[k] = plant.step(ff.step(float(x)))
     noise = float(np.std(np.diff(ys[-settle:])) / math.sqrt(2.0))
+    ripple0 = math.sqrt(2.0) * noise  # the error's sample-to-sample RMS with the feedforward alone
     probe = min(opt.probe_fraction * lim.span, 0.5 * lim.max_step)
     y_probe = probe / volts_per_um  # µm the probe moves the stage, roughly
     pid = PID(0.0, opt.start_fraction * ki_model, 0.0, dt)
@@ -450,6 +493,7 @@ def tune_integral_safely(
         n_p = int(min(max(math.ceil(8.0 / (ki * dt)), math.ceil(10.0 / (f_pc * dt)), 100),
                       max(round(0.25 / dt), 100)))
         answers = []
+        ringing: list[float] = []  # per probe segment: the error's sample-to-sample RMS, second half
         aborted = False
         integral0 = pid.integral
         state["u_lo"], state["u_hi"] = math.inf, -math.inf
@@ -462,6 +506,7 @@ def tune_integral_safely(
                 break
             # the feedback cancels the probe: its answer runs from 0 towards 1 (of the probe)
             answers.append(-sign * (fbs - fb0) / probe)
+            ringing.append(_error_ripple(fbs, fb0, ki * dt * volts_per_um))
         if aborted:  # back to where the trial began, probe off, feedforward alone, and settle
             pid.integral = integral0
             pid.ki = 0.0
@@ -470,11 +515,30 @@ def tune_integral_safely(
         else:
             mean = _smooth(np.mean(answers, axis=0), max(1, int(round(0.5 / (ki * dt)))))
             overshoot = float(mean.max()) - 1.0
-        ok = overshoot <= opt.overshoot_limit
+        # a loop that amplifies a resonance the model does not have: the probe's answer can look
+        # well damped while an oscillation grows underneath it, from the sensor's noise, over
+        # the trial (a 180 Hz, 1 % damped stage: overshoot 0.18 at a gain whose oscillation
+        # doubled every 50 ms and ended the tracking run). Its mark: the error's sample-to-sample
+        # RMS, once each probe's answer has settled, well above the feedforward-alone noise and
+        # growing from the first probe to the last.
+        # the probes go up and down in turn, and a hysteretic stage's slope (the loop's gain)
+        # differs between the two: each probe is compared with the last one the same way
+        ripple = max(ringing) / ripple0 if ringing and ripple0 > 0 else 0.0
+        growth = max((ringing[j] / ringing[j - 2] for j in range(2, len(ringing)) if ringing[j - 2] > 0), default=1.0)
+        grows = ripple > RIPPLE_LIMIT and growth > RIPPLE_GROWTH
+        if grows:  # as after an abort: the trial's own integral, the feedforward alone, and settle
+            # for long enough that the next trial starts from noise, not from this one's ringing
+            # (a resonance the loop had driven rings down slowly: 88 ms per e-fold at 180 Hz, 1 %)
+            pid.integral = integral0
+            pid.ki = 0.0
+            run(max(n_p, int(round(RING_DOWN_S / dt))), False, 0.0, 0.0, False)
+        ok = overshoot <= opt.overshoot_limit and not grows
         trials.append((ki, overshoot))
         experiments.append({"ki": ki, "overshoot": None if aborted else overshoot, "aborted": aborted,
                             "samples": n_p, "well_damped": ok, "probe_V": probe,
-                            "command_band_V": (state["u_lo"], state["u_hi"])})
+                            "command_band_V": (state["u_lo"], state["u_hi"]),
+                            "ripple_over_noise": ripple, "ripple_growth": growth, "oscillation_grows": grows,
+                            "ripples": [r / ripple0 if ripple0 > 0 else 0.0 for r in ringing]})
         return ok
 
     ki_ok = 0.0
@@ -496,6 +560,18 @@ def tune_integral_safely(
     finally:
         plant.ramp_to(lim.rest)  # back to rest, smoothly, whatever happened
 
+    # The probes after the first reverse the one before, so the experiments linearise the stage
+    # near a reversal. When what stopped them was an oscillation growing (a resonance the model
+    # lacks, found by the plant rather than bounded by the model's margins), that limit holds at
+    # the slope a probe sees after a reversal; a tracking run climbs to the major loop's steepest
+    # slope, where the same gain drives the resonance harder (a play-type stage: 4-5x after a
+    # reversal): the gain is divided by that ratio instead.
+    resonance = any(e.get("oscillation_grows") for e in experiments)
+    if resonance and ki_ok > 0:
+        chord = reversal_chord_slope(model, dt, u_level=u_level, u_range=(lim.low, lim.high), step=probe)
+        steepest = major_loop_steepest_slope(model, dt, u_range=(lim.low, lim.high))
+        if chord > 0 and math.isfinite(steepest):
+            slope_ratio = max(slope_ratio, steepest / chord)
     ki_final = ki_ok / (opt.back_off * slope_ratio)
     margins = resp.margins(ki_final) if ki_final > 0 else {}
     if ki_final > 0:  # the same loop where the major loop is steepest
@@ -504,6 +580,7 @@ def tune_integral_safely(
     method = (f"integral gain from the model (phase margin {opt.phase_margin_deg:g} deg, gain margin "
               f"{opt.gain_margin:g}, delay {delay} + 1 samples): ki_model = {ki_model:.4g}; bounded experiments "
               f"(probe {probe:.3g} V, overshoot <= {opt.overshoot_limit:g}) well damped up to {ki_ok:.4g}; "
-              f"ki = {ki_ok:.4g} / ({opt.back_off:g} * large-signal slope ratio {slope_ratio:.3g})")
+              f"ki = {ki_ok:.4g} / ({opt.back_off:g} * large-signal slope ratio {slope_ratio:.3g}"
+              f"{' from a reversal: an oscillation grew in the experiments' if resonance else ''})")
     return TuningResult(kp=0.0, ki=ki_final, kd=0.0, ki_ultimate=ki_u_model, trials=tuple(trials),
                         method=method, ki_model=ki_model, margins=margins, experiments=tuple(experiments))
