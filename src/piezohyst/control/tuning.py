@@ -410,14 +410,23 @@ def tune_integral_safely(
        the first gain whose answer overshoots by more than ``overshoot_limit`` (a loop losing its
        damping, seen at the probe's small amplitude) or that moves further than the probe can
        explain (aborted at once), and never goes past ``max_factor * ki_model`` or the model's
-       ultimate gain divided by ``back_off``. The command then ramps back to rest. The loop is
-       never taken near instability, and the commands stay within a few probe sizes of the hold.
+       ultimate gain divided by ``back_off``. A gain is not well damped either when, once each
+       probe's answer has settled, the error's sample-to-sample RMS is more than
+       :data:`RIPPLE_LIMIT` times the feedforward-alone noise and grows by more than
+       :data:`RIPPLE_GROWTH` from one probe to the next one the same way: an oscillation building
+       under an answer that looks damped (a low, lightly damped resonance the model lacks); the
+       stage then rests :data:`RING_DOWN_S` before the next trial. The command then ramps back
+       to rest. The loop is never taken near instability, and the commands stay within a few
+       probe sizes of the hold.
     3. ``ki`` = the largest well-damped gain / (``back_off`` * the large-signal slope ratio). The
        experiments and the model's margins hold where the loop was linearised; a tracking run
        sweeps the stage along branches that can be steeper (on a Preisach-like stage 2x and more
        late on a branch), and the loop's gain grows with the slope: dividing by the ratio of the
        steepest slope of the model's major loop to the linearised one
-       (:func:`large_signal_slope_ratio`) keeps the margins there too. When already the first gain
+       (:func:`large_signal_slope_ratio`) keeps the margins there too. When a growing
+       oscillation stopped the ladder, the limit was found near a reversal (each probe after the
+       first reverses the one before), so the ratio is taken to the slope a probe sees after a
+       reversal (:func:`reversal_chord_slope`) instead. When already the first gain
        is not well damped (the model overestimates what the plant takes: an unmodelled
        resonance, more delay), the gain is halved until it is, at most five times (else
        ``ki = 0``: no feedback).
