@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
@@ -400,3 +400,23 @@ def test_split_normal_equations_add_up_to_the_whole_record(u, dmax, frac, m):
         np.testing.assert_allclose(getattr(part, name) + getattr(held, name), getattr(whole, name),
                                    rtol=0, atol=1e-11 * scale)
     np.testing.assert_array_equal(held.n_samples, n - n_fit)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), stride=st.integers(1, 40), n=st.integers(1, 3000), levels=st.integers(1, 8))
+def test_strided_regressors_are_every_strideth_row(seed, stride, n, levels):
+    """The model search's strided regressors (identify/linear.py, records longer than its row
+    budget) are exactly every stride-th row of the full matrices, for P-I and Preisach alike."""
+    from piezohyst.models.play import play_outputs, play_outputs_strided
+    from piezohyst.models.preisach import (demagnetised_state, grid_thresholds, preisach_outputs,
+                                           preisach_outputs_strided)
+
+    rng = np.random.default_rng(seed)
+    u = np.cumsum(rng.normal(0.0, 1.0, n))
+    r = np.linspace(0.0, 3.0, 6)
+    assert np.array_equal(play_outputs(u, r, np.zeros(6))[::stride], play_outputs_strided(u, r, np.zeros(6), stride))
+    lo, hi = float(u.min()) - 1.0, float(u.max()) + 1.0
+    a, b, d = grid_thresholds(lo, hi, levels)
+    z0 = demagnetised_state(a, b, d, 0.0)
+    assert np.array_equal(preisach_outputs(u, a, b, 1.0 / d, z0.copy())[::stride],
+                          preisach_outputs_strided(u, a, b, 1.0 / d, z0.copy(), stride))

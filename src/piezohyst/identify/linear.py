@@ -39,8 +39,8 @@ from .._validation import FloatArray
 from ..models.asymmetric_pi import AsymmetricPI, OutputMap
 from ..models.bouc_wen_hysteresis import BoucWenHysteresis, max_unit_slope, unit_hysteresis
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
-from ..models.play import play_outputs
-from ..models.preisach import Preisach, demagnetised_state, grid_thresholds, preisach_outputs
+from ..models.play import play_outputs, play_outputs_strided
+from ..models.preisach import Preisach, demagnetised_state, grid_thresholds, preisach_outputs, preisach_outputs_strided
 from ..models.rate import RateDependent, first_order_lag, lag_factor
 from .lsq import bounded_lstsq_gram
 from .result import FitResult
@@ -225,7 +225,7 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
     for i, al in enumerate(a_lag):
         key_l = ("lag", st.input_tau, float(al), ref.size, stride)
         if key_l not in memo:
-            memo[key_l] = first_order_lag(v, float(al))[rows]
+            memo[key_l] = np.ascontiguousarray(first_order_lag(v, float(al))[rows])  # not a view of all N
         base[:, p + 1 + i] = memo[key_l]
     base[:, -1] = 1.0
     return Prepared(st, v, base, p, m, a_lag, info, stride)
@@ -243,14 +243,15 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure,
         else:
             half_span = 0.5 * float(np.ptp(v_ref))
             r = np.arange(st.size, dtype=np.float64) / st.size * half_span
-        z = play_outputs(np.ascontiguousarray(v), r, np.zeros(r.size))[rows]
+        vc = np.ascontiguousarray(v)
+        z = play_outputs(vc, r, np.zeros(r.size)) if stride == 1 else play_outputs_strided(vc, r, np.zeros(r.size), stride)
         zd = z.copy()
         zd[:, :-1] -= z[:, 1:]  # y = sum_j S_j (z_j - z_{j+1}): the partial sums' columns
         static_cols, floor = zd, zd.sum(axis=1)  # sum of the columns = z_1 = v (r_1 = 0)
         info["thresholds"] = r
     elif st.static == "bouc-wen":
         beta, gamma = st.shape
-        h1 = unit_hysteresis(v, beta, gamma)[rows]
+        h1 = np.ascontiguousarray(unit_hysteresis(v, beta, gamma)[rows])  # not a view of all N
         # invertible over the states the data's range reaches (and 0 V, the de-energised state)
         v_range = (min(float(v_ref.min()), 0.0), max(float(v_ref.max()), 0.0))
         mslope = max_unit_slope(beta, gamma, v_range)
@@ -265,7 +266,9 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure,
         lo, hi = lo - pad, hi + pad
         a, bb, d = grid_thresholds(lo, hi, st.size)
         z0 = demagnetised_state(a, bb, d, 0.0)
-        static_cols = np.ascontiguousarray(preisach_outputs(np.ascontiguousarray(v), a, bb, 1.0 / d, z0)[rows])
+        vc = np.ascontiguousarray(v)
+        static_cols = (preisach_outputs(vc, a, bb, 1.0 / d, z0) if stride == 1
+                       else preisach_outputs_strided(vc, a, bb, 1.0 / d, z0, stride))
         floor = np.array(v[rows], dtype=np.float64)
         info["grid"] = (lo, hi)
     return static_cols, floor, info

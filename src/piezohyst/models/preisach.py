@@ -142,6 +142,21 @@ def preisach_outputs(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_del
 
 
 @njit
+def preisach_outputs_strided(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
+                             stride: int) -> FloatArray:  # pragma: no cover
+    """``preisach_outputs(...)[::stride]`` without the whole matrix: every hysteron runs over
+    every sample, and only the rows ``0, stride, 2 stride, ...`` are kept."""
+    out = np.empty(((v.shape[0] + stride - 1) // stride, z.shape[0]))
+    for k in range(v.shape[0]):
+        preisach_step(v[k], alpha, beta, inv_delta, z)
+        if k % stride == 0:
+            row = out[k // stride]
+            for h in range(z.shape[0]):
+                row[h] = z[h]
+    return out
+
+
+@njit
 def preisach_simulate(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
                       mu: FloatArray, slope: float, offset: float) -> FloatArray:  # pragma: no cover
     y = np.empty(v.shape[0])
