@@ -232,3 +232,20 @@ def test_strided_regressors_are_the_full_ones_subsampled(static, stride):
     for _ in range(2):  # built, then from the cache
         sub = lin.prepare(ds.u, rig.dt, st, stride=stride, cache=cache)
         np.testing.assert_array_equal(sub.base, full.base[::stride])
+
+
+@pytest.mark.parametrize("static,size,shape", [("pi", 12, (0.0, 0.0)), ("preisach", 6, (0.0, 0.0)),
+                                               ("bouc-wen", 1, (0.03, -0.01))])
+def test_a_refits_design_written_in_place_is_the_searchs_design(static, size, shape):
+    """``prepare`` without a cache at stride 1 (a refit on all the data) writes the static part's
+    columns straight into the design; the design is bit for bit the one the search's cached path
+    builds and copies (identify/linear.py)."""
+    from piezohyst.identify.linear import Structure, prepare
+
+    rng = np.random.default_rng(3)
+    u = np.clip(50.0 + np.cumsum(rng.normal(0.0, 1.0, 5000)), 0.0, 100.0)
+    st = Structure(static=static, size=size, taus=(0.002, 0.05), input_tau=3e-4, delay=2, shape=shape)
+    direct = prepare(u, 1e-4, st, u_ref=u[:4000])
+    cached = prepare(u, 1e-4, st, u_ref=u[:4000], cache={})
+    assert direct.base.shape == cached.base.shape
+    assert np.array_equal(direct.base, cached.base)

@@ -142,6 +142,17 @@ def preisach_outputs(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_del
 
 
 @njit
+def preisach_outputs_into(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
+                          out: FloatArray) -> None:  # pragma: no cover
+    """:func:`preisach_outputs` written into ``out`` (N rows, one column per hysteron; may be a
+    view into a wider matrix)."""
+    for k in range(v.shape[0]):
+        preisach_step(v[k], alpha, beta, inv_delta, z)
+        for h in range(z.shape[0]):
+            out[k, h] = z[h]
+
+
+@njit
 def preisach_outputs_strided(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
                              stride: int) -> FloatArray:  # pragma: no cover
     """``preisach_outputs(...)[::stride]`` without the whole matrix: every hysteron runs over
