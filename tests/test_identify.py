@@ -234,9 +234,10 @@ def test_strided_regressors_are_the_full_ones_subsampled(static, stride):
         np.testing.assert_array_equal(sub.base, full.base[::stride])
 
 
+@pytest.mark.parametrize("stride", [1, 3])
 @pytest.mark.parametrize("static,size,shape", [("pi", 12, (0.0, 0.0)), ("preisach", 6, (0.0, 0.0)),
                                                ("bouc-wen", 1, (0.03, -0.01))])
-def test_a_refits_design_written_in_place_is_the_searchs_design(static, size, shape):
+def test_a_refits_design_written_in_place_is_the_searchs_design(static, size, shape, stride):
     """``prepare`` without a cache at stride 1 (a refit on all the data) writes the static part's
     columns straight into the design; the design is bit for bit the one the search's cached path
     builds and copies (identify/linear.py)."""
@@ -245,7 +246,26 @@ def test_a_refits_design_written_in_place_is_the_searchs_design(static, size, sh
     rng = np.random.default_rng(3)
     u = np.clip(50.0 + np.cumsum(rng.normal(0.0, 1.0, 5000)), 0.0, 100.0)
     st = Structure(static=static, size=size, taus=(0.002, 0.05), input_tau=3e-4, delay=2, shape=shape)
-    direct = prepare(u, 1e-4, st, u_ref=u[:4000])
-    cached = prepare(u, 1e-4, st, u_ref=u[:4000], cache={})
+    direct = prepare(u, 1e-4, st, u_ref=u[:4000], stride=stride)
+    cached = prepare(u, 1e-4, st, u_ref=u[:4000], cache={}, stride=stride)
     assert direct.base.shape == cached.base.shape
     assert np.array_equal(direct.base, cached.base)
+
+
+def test_a_record_beyond_the_row_budget_is_fitted_on_every_kth_row():
+    """``fit_structure`` with more fitting rows than ``max_rows`` fits on every k-th row (a long
+    record's design matrix would not fit in memory) and reports its RMSE over every row from the
+    model's own prediction: on a smooth record the model is as good as the fit on all rows."""
+    from piezohyst.identify.linear import Structure, fit_structure
+
+    rig = ph.VirtualRig()
+    u = ph.sinusoid(2.0, 3, 0.0, 100.0, rig.dt) * np.linspace(1.0, 0.5, int(1.5 / rig.dt))
+    y = rig.excite(u).y
+    st = Structure(static="preisach", size=8, taus=(0.003, 0.05), delay=2)
+    full, _ = fit_structure(u, y, rig.dt, st)
+    thin, pred = fit_structure(u, y, rig.dt, st, max_rows=2000)
+    k = -(-(u.size - 2) // 2000)
+    assert "fit_every_kth_row" not in full.info and thin.info["fit_every_kth_row"] == k > 1
+    assert pred.size == u.size
+    assert thin.rmse == pytest.approx(float(np.sqrt(np.mean((y[2:] - pred[2:]) ** 2))), rel=1e-12)
+    assert thin.rmse <= 1.1 * full.rmse

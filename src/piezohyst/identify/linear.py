@@ -39,7 +39,7 @@ from .._validation import FloatArray
 from ..models.asymmetric_pi import AsymmetricPI, OutputMap
 from ..models.bouc_wen_hysteresis import BoucWenHysteresis, max_unit_slope, unit_hysteresis
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
-from ..models.play import _play_outputs_into, play_outputs, play_outputs_strided
+from ..models.play import _play_outputs_into, play_outputs, play_outputs_strided, play_outputs_strided_into
 from ..models.preisach import (Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs,
                                preisach_outputs_into, preisach_outputs_strided)
 from ..models.rate import RateDependent, first_order_lag, lag_factor
@@ -215,13 +215,13 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
     a_lag = np.exp(-float(dt or 0.0) / np.asarray(st.taus, dtype=np.float64)) if st.taus else np.zeros(0)
     m = a_lag.size
     rows = slice(None, None, stride)
-    if cache is None and stride == 1:
-        # a one-off design over every row (a refit on all the data): the static part's columns
-        # are written straight into the design, not built beside it and copied (on a 10^6-sample
-        # record with a 16-level Preisach grid, 1.3 GB less at the peak)
+    if cache is None:
+        # a one-off design (a refit on all the data): the static part's columns are written
+        # straight into the design, not built beside it and copied (on a 10^6-sample record with
+        # a 16-level Preisach grid, 1.3 GB less at the peak)
         p = _static_width(st)
-        base = np.empty((u.size, p + m + 2))
-        _, floor, info = _static_columns(v, v_ref, st, 1, out=base[:, :p])
+        base = np.empty((-(-u.size // stride), p + m + 2))
+        _, floor, info = _static_columns(v, v_ref, st, stride, out=base[:, :p])
     else:
         if key_s in memo:
             static_cols, floor, info = memo[key_s]
@@ -250,8 +250,8 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int
                     out: FloatArray | None = None) -> tuple[FloatArray, FloatArray, dict[str, Any]]:
     """The static part's free columns, its floor column and what decoding needs, at the samples
     ``0, stride, 2 stride, ...`` (the operators' states are computed at every sample). With
-    ``out`` (``stride == 1``; :func:`_static_width` columns, e.g. a view into the design) the
-    columns are written there, the same numbers, and ``out`` is returned as them."""
+    ``out`` (:func:`_static_width` columns, one row per kept sample, e.g. a view into the
+    design) the columns are written there, the same numbers, and ``out`` is returned as them."""
     info: dict[str, Any] = {}
     rows = slice(None, None, stride)
     if st.static == "pi":
@@ -262,7 +262,10 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int
             r = np.arange(st.size, dtype=np.float64) / st.size * half_span
         vc = np.ascontiguousarray(v)
         if out is not None:
-            _play_outputs_into(vc, r, np.zeros(r.size), out, np.zeros(r.size))
+            if stride == 1:
+                _play_outputs_into(vc, r, np.zeros(r.size), out, np.zeros(r.size))
+            else:
+                play_outputs_strided_into(vc, r, np.zeros(r.size), stride, out)
             for j in range(r.size - 1):  # in place, column by column: the same differences
                 out[:, j] -= out[:, j + 1]
             zd = out
@@ -294,7 +297,7 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int
         z0 = demagnetised_state(a, bb, d, 0.0)
         vc = np.ascontiguousarray(v)
         if out is not None:
-            preisach_outputs_into(vc, a, bb, 1.0 / d, z0, out)
+            preisach_outputs_into(vc, a, bb, 1.0 / d, z0, out, stride)
             static_cols = out
         else:
             static_cols = (preisach_outputs(vc, a, bb, 1.0 / d, z0) if stride == 1
@@ -514,14 +517,23 @@ def mean_slope(u: FloatArray, y: FloatArray) -> float:
     return float(np.ptp(y)) / su
 
 
+#: Rows a fit on all the data holds in its design matrix at most; a longer record is fitted on
+#: every k-th row (the operators still run over every sample), its RMSE over every row.
+REFIT_ROWS = 1_000_000
+
+
 def fit_structure(u: FloatArray, y: FloatArray, dt: float | None, st: Structure, *, n_fit: int | None = None,
                   margin: float | None = None, fit_offset: bool = True,
-                  prepared: Prepared | None = None) -> tuple[FitResult, FloatArray]:
+                  prepared: Prepared | None = None, max_rows: int | None = REFIT_ROWS) -> tuple[FitResult, FloatArray]:
     """Fit ``st`` on samples ``[0, n_fit)`` of the record (default all) and predict the whole record.
 
     Returns the fit and the prediction over the whole record (µm), aligned with ``y`` (the
     prediction's sample k is compared with ``y[k]``; the first ``delay`` samples repeat the first
-    prediction, as nothing is known before the record starts).
+    prediction, as nothing is known before the record starts). A record of more than
+    ``max_rows`` fitting rows (default :data:`REFIT_ROWS`; None: no limit) is fitted on every
+    k-th of them, k the smallest that keeps it within (the design matrix of a 10^7-sample record
+    with a 16-level Preisach grid and lags would be 14 GB), and the model then predicts every
+    sample (its own simulation), from which the RMSE is taken.
     """
     t0 = time.perf_counter()
     n = u.size
@@ -531,8 +543,13 @@ def fit_structure(u: FloatArray, y: FloatArray, dt: float | None, st: Structure,
         raise ValueError(f"{n_fit} samples with a delay of {d} leave too few to fit")
     if margin is None:
         margin = DEFAULT_MARGIN * mean_slope(u[:n_fit], y[:n_fit])
-    pre = prepared if prepared is not None else prepare(u, dt, st, u_ref=u[:n_fit])
-    model, info, pred_u = fit_prepared(pre, y[d:n_fit], n_fit - d, dt, margin=margin, fit_offset=fit_offset)
+    stride = 1 if prepared is not None or max_rows is None else max(1, -(-(n_fit - d) // int(max_rows)))
+    pre = prepared if prepared is not None else prepare(u, dt, st, u_ref=u[:n_fit], stride=stride)
+    model, info, pred_u = fit_prepared(pre, y[d:n_fit], n_fit - d, dt, margin=margin, fit_offset=fit_offset,
+                                       predict=(0, stride) if pre.stride > 1 else None)
+    if pre.stride > 1:
+        pred_u = np.asarray(model.predict(u, dt if getattr(model, "dynamic", False) else None), dtype=np.float64)
+        info["fit_every_kth_row"] = int(pre.stride)
     pred = np.concatenate([np.full(d, pred_u[0]), pred_u[: n - d]]) if d else pred_u
     resid = y[d:n_fit] - pred[d:n_fit]
     rmse = float(np.sqrt(np.mean(resid**2)))

@@ -143,27 +143,23 @@ def preisach_outputs(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_del
 
 @njit
 def preisach_outputs_into(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
-                          out: FloatArray) -> None:  # pragma: no cover
-    """:func:`preisach_outputs` written into ``out`` (N rows, one column per hysteron; may be a
-    view into a wider matrix)."""
-    for k in range(v.shape[0]):
-        preisach_step(v[k], alpha, beta, inv_delta, z)
-        for h in range(z.shape[0]):
-            out[k, h] = z[h]
-
-
-@njit
-def preisach_outputs_strided(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
-                             stride: int) -> FloatArray:  # pragma: no cover
-    """``preisach_outputs(...)[::stride]`` without the whole matrix: every hysteron runs over
-    every sample, and only the rows ``0, stride, 2 stride, ...`` are kept."""
-    out = np.empty(((v.shape[0] + stride - 1) // stride, z.shape[0]))
+                          out: FloatArray, stride: int = 1) -> None:  # pragma: no cover
+    """:func:`preisach_outputs` at the rows ``0, stride, 2 stride, ...`` written into ``out`` (one
+    row per kept sample, one column per hysteron; may be a view into a wider matrix); every
+    hysteron runs over every sample."""
     for k in range(v.shape[0]):
         preisach_step(v[k], alpha, beta, inv_delta, z)
         if k % stride == 0:
-            row = out[k // stride]
+            j = k // stride
             for h in range(z.shape[0]):
-                row[h] = z[h]
+                out[j, h] = z[h]
+
+
+def preisach_outputs_strided(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
+                             stride: int) -> FloatArray:
+    """``preisach_outputs(...)[::stride]`` without the whole matrix."""
+    out = np.empty(((v.shape[0] + stride - 1) // stride, z.shape[0]))
+    preisach_outputs_into(v, alpha, beta, inv_delta, z, out, stride)
     return out
 
 
