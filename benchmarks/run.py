@@ -467,24 +467,19 @@ def _preisach_loops() -> tuple[Callable[..., Any], Callable[..., Any]]:
         preisach_step(v, alpha, beta, inv_delta, z)
         return v
 
-    @njit
-    def run_newton(x, alpha, beta, inv_delta, z, mu, slope, offset):  # pragma: no cover
-        out = np.empty(x.shape[0])
-        v = 0.0
-        for k in range(x.shape[0]):
-            v = preisach_solve(x[k], v, alpha, beta, inv_delta, z, mu, slope, offset, 60)
-            out[k] = v
-        return out
+    def over_trajectory(solve: Callable[..., float]) -> Callable[..., Any]:
+        @njit
+        def run(x, alpha, beta, inv_delta, z, mu, slope, offset):  # pragma: no cover
+            out = np.empty(x.shape[0])
+            v = 0.0
+            for k in range(x.shape[0]):
+                v = solve(x[k], v, alpha, beta, inv_delta, z, mu, slope, offset, 60)
+                out[k] = v
+            return out
 
-    @njit
-    def run_bisect(x, alpha, beta, inv_delta, z, mu, slope, offset):  # pragma: no cover
-        out = np.empty(x.shape[0])
-        v = 0.0
-        for k in range(x.shape[0]):
-            v = bisect(x[k], v, alpha, beta, inv_delta, z, mu, slope, offset, 60)
-            out[k] = v
-        return out
+        return run  # type: ignore[no-any-return]
 
+    run_newton, run_bisect = over_trajectory(preisach_solve), over_trajectory(bisect)
     return run_newton, run_bisect
 
 
