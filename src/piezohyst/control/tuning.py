@@ -188,6 +188,16 @@ def _margins(freqs: FloatArray, lp: FloatArray) -> dict[str, float]:
     return out
 
 
+def _lead_to(u_level: float, u_range: tuple[float, float], dt: float) -> FloatArray:
+    """The command that brings a model from rest (0 V, or the nearest end of the range) to
+    ``u_level`` along a raised cosine (50 ms, at least 20 samples) and holds it as long."""
+    lo, hi = u_range
+    n = max(int(round(0.05 / dt)), 20)
+    start = min(max(0.0, lo), hi)
+    k = np.arange(1, n + 1) / n
+    return np.concatenate([start + (u_level - start) * 0.5 * (1 - np.cos(np.pi * k)), np.full(n, u_level)])
+
+
 def small_signal_responses(model: Any, dt: float, *, u_level: float, u_range: tuple[float, float],
                            length: int | None = None) -> dict[str, FloatArray]:
     """Impulse responses (µm per V per sample) of ``model`` linearised at the command ``u_level``.
@@ -201,11 +211,7 @@ def small_signal_responses(model: Any, dt: float, *, u_level: float, u_range: tu
     lo, hi = u_range
     span = hi - lo
     n = int(length or max(256, round(0.2 / dt)))
-    n_ramp = max(int(round(0.05 / dt)), 20)
-    n_hold = max(int(round(0.05 / dt)), 20)
-    start = min(max(0.0, lo), hi)
-    k = np.arange(1, n_ramp + 1) / n_ramp
-    lead = np.concatenate([start + (u_level - start) * 0.5 * (1 - np.cos(np.pi * k)), np.full(n_hold, u_level)])
+    lead = _lead_to(u_level, u_range, dt)
     step = 1e-3 * span
     runs = {}
     for name, du in (("base", 0.0), ("rising", step), ("reversal", -step)):
@@ -255,14 +261,10 @@ def major_loop_steepest_slope(model: Any, dt: float, *, u_range: tuple[float, fl
 def reversal_chord_slope(model: Any, dt: float, *, u_level: float, u_range: tuple[float, float], step: float) -> float:
     """The model's settled answer (µm per V) to a reversal of ``step`` volts at ``u_level``
     (ramped to from rest, held, then stepped down): the slope a probe of that size sees there."""
-    lo, hi = u_range
-    n = max(int(round(0.05 / dt)), 20)
-    start = min(max(0.0, lo), hi)
-    k = np.arange(1, n + 1) / n
-    lead = np.concatenate([start + (u_level - start) * 0.5 * (1 - np.cos(np.pi * k)), np.full(n, u_level)])
+    lead = _lead_to(u_level, u_range, dt)
     runs = []
     for du in (0.0, -step):
-        u = np.concatenate([lead, np.full(4 * n, u_level + du)])
+        u = np.concatenate([lead, np.full(lead.size * 2, u_level + du)])
         runs.append(float(np.asarray(model.predict(u, dt if model.dynamic else None), dtype=np.float64)[-1]))
     return (runs[0] - runs[1]) / step
 
@@ -340,10 +342,10 @@ class SafeTuningOptions:
             raise ValueError(f"repeats must be a positive integer, got {self.repeats!r}")
 
 
-#: An oscillation grows under the feedback (:func:`tune_integral_safely`, step 2) when, in the last
-#: probe of a trial, the error's sample-to-sample RMS is more than ``RIPPLE_LIMIT`` times the
-#: feedforward-alone noise's and more than ``RIPPLE_GROWTH`` times the first probe's (noise alone:
-#: about 1 and 1 +- 0.15).
+#: An oscillation grows under the feedback (:func:`tune_integral_safely`, step 2) when, in a trial,
+#: the error's sample-to-sample RMS after a probe has settled is more than ``RIPPLE_LIMIT`` times
+#: the feedforward-alone noise's somewhere, and more than ``RIPPLE_GROWTH`` times the previous
+#: probe's the same way somewhere (noise alone: about 1 and 1 +- 0.15).
 RIPPLE_LIMIT = 2.0
 RIPPLE_GROWTH = 1.3
 #: Seconds the feedforward alone holds the stage after a trial whose oscillation grew.
@@ -529,9 +531,8 @@ def tune_integral_safely(
         # the trial (a 180 Hz, 1 % damped stage: overshoot 0.18 at a gain whose oscillation
         # doubled every 50 ms and ended the tracking run). Its mark: the error's sample-to-sample
         # RMS, once each probe's answer has settled, well above the feedforward-alone noise and
-        # growing from the first probe to the last.
-        # the probes go up and down in turn, and a hysteretic stage's slope (the loop's gain)
-        # differs between the two: each probe is compared with the last one the same way
+        # growing. The probes go up and down in turn, and a hysteretic stage's slope (the loop's
+        # gain) differs between the two: each probe is compared with the last one the same way.
         ripple = max(ringing) / ripple0 if ringing and ripple0 > 0 else 0.0
         growth = max((ringing[j] / ringing[j - 2] for j in range(2, len(ringing)) if ringing[j - 2] > 0), default=1.0)
         grows = ripple > RIPPLE_LIMIT and growth > RIPPLE_GROWTH
