@@ -407,16 +407,19 @@ def test_split_normal_equations_add_up_to_the_whole_record(u, dmax, frac, m):
 def test_strided_regressors_are_every_strideth_row(seed, stride, n, levels):
     """The model search's strided regressors (identify/linear.py, records longer than its row
     budget) are exactly every stride-th row of the full matrices, for P-I and Preisach alike."""
-    from piezohyst.models.play import play_outputs, play_outputs_strided
-    from piezohyst.models.preisach import (demagnetised_state, grid_thresholds, preisach_outputs,
-                                           preisach_outputs_strided)
+    from piezohyst.models.play import play_outputs, play_outputs_strided_into
+    from piezohyst.models.preisach import demagnetised_state, grid_thresholds, preisach_outputs, preisach_outputs_into
 
     rng = np.random.default_rng(seed)
     u = np.cumsum(rng.normal(0.0, 1.0, n))
     r = np.linspace(0.0, 3.0, 6)
-    assert np.array_equal(play_outputs(u, r, np.zeros(6))[::stride], play_outputs_strided(u, r, np.zeros(6), stride))
+    rows = -(-n // stride)
+    got = np.empty((rows, 6))
+    play_outputs_strided_into(u, r, np.zeros(6), stride, got)
+    assert np.array_equal(play_outputs(u, r, np.zeros(6))[::stride], got)
     lo, hi = float(u.min()) - 1.0, float(u.max()) + 1.0
     a, b, d = grid_thresholds(lo, hi, levels)
     z0 = demagnetised_state(a, b, d, 0.0)
-    assert np.array_equal(preisach_outputs(u, a, b, 1.0 / d, z0.copy())[::stride],
-                          preisach_outputs_strided(u, a, b, 1.0 / d, z0.copy(), stride))
+    got = np.empty((rows, a.size))
+    preisach_outputs_into(u, a, b, 1.0 / d, z0.copy(), got, stride)
+    assert np.array_equal(preisach_outputs(u, a, b, 1.0 / d, z0.copy())[::stride], got)

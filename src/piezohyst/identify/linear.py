@@ -39,9 +39,8 @@ from .._validation import FloatArray
 from ..models.asymmetric_pi import AsymmetricPI, OutputMap
 from ..models.bouc_wen_hysteresis import BoucWenHysteresis, max_unit_slope, unit_hysteresis
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
-from ..models.play import _play_outputs_into, play_outputs, play_outputs_strided, play_outputs_strided_into
-from ..models.preisach import (Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs,
-                               preisach_outputs_into, preisach_outputs_strided)
+from ..models.play import play_outputs_strided_into
+from ..models.preisach import Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs_into
 from ..models.rate import RateDependent, first_order_lag, lag_factor
 from .lsq import bounded_lstsq_gram
 from .result import FitResult
@@ -260,19 +259,11 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int
         else:
             half_span = 0.5 * float(np.ptp(v_ref))
             r = np.arange(st.size, dtype=np.float64) / st.size * half_span
-        vc = np.ascontiguousarray(v)
-        if out is not None:
-            if stride == 1:
-                _play_outputs_into(vc, r, np.zeros(r.size), out, np.zeros(r.size))
-            else:
-                play_outputs_strided_into(vc, r, np.zeros(r.size), stride, out)
-            for j in range(r.size - 1):  # in place, column by column: the same differences
-                out[:, j] -= out[:, j + 1]
-            zd = out
-        else:
-            z = play_outputs(vc, r, np.zeros(r.size)) if stride == 1 else play_outputs_strided(vc, r, np.zeros(r.size), stride)
-            zd = z.copy()
-            zd[:, :-1] -= z[:, 1:]  # y = sum_j S_j (z_j - z_{j+1}): the partial sums' columns
+        n_rows = -(-v.size // stride)
+        zd = np.empty((n_rows, r.size)) if out is None else out
+        play_outputs_strided_into(np.ascontiguousarray(v), r, np.zeros(r.size), stride, zd)
+        for j in range(r.size - 1):  # y = sum_j S_j (z_j - z_{j+1}): the partial sums' columns, in place
+            zd[:, j] -= zd[:, j + 1]
         static_cols, floor = zd, zd.sum(axis=1)  # sum of the columns = z_1 = v (r_1 = 0)
         info["thresholds"] = r
     elif st.static == "bouc-wen":
@@ -295,13 +286,8 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int
         lo, hi = lo - pad, hi + pad
         a, bb, d = grid_thresholds(lo, hi, st.size)
         z0 = demagnetised_state(a, bb, d, 0.0)
-        vc = np.ascontiguousarray(v)
-        if out is not None:
-            preisach_outputs_into(vc, a, bb, 1.0 / d, z0, out, stride)
-            static_cols = out
-        else:
-            static_cols = (preisach_outputs(vc, a, bb, 1.0 / d, z0) if stride == 1
-                           else preisach_outputs_strided(vc, a, bb, 1.0 / d, z0, stride))
+        static_cols = np.empty((-(-v.size // stride), a.size)) if out is None else out
+        preisach_outputs_into(np.ascontiguousarray(v), a, bb, 1.0 / d, z0, static_cols, stride)
         floor = np.array(v[rows], dtype=np.float64)
         info["grid"] = (lo, hi)
     return static_cols, floor, info

@@ -479,8 +479,10 @@ def _play_outputs_into(
 @njit
 def play_outputs_strided_into(u: FloatArray, r: FloatArray, z: FloatArray, stride: int,
                               out: FloatArray) -> None:  # pragma: no cover
-    """The operator outputs at the rows ``0, stride, 2 stride, ...`` written into ``out`` (one row
-    per kept sample; may be a view into a wider matrix); the operators run over every sample."""
+    """``play_outputs(u, r, z)[::stride]`` written into ``out`` (one row per kept sample; may be a
+    view into a wider matrix) without the whole matrix: the operators run over every sample (a
+    model search on a long record: a 10^6-sample record's 20 operators held 160 MB to keep
+    30,000 rows)."""
     m = r.shape[0]
     for k in range(u.shape[0]):
         x = u[k]
@@ -490,14 +492,6 @@ def play_outputs_strided_into(u: FloatArray, r: FloatArray, z: FloatArray, strid
             j = k // stride
             for i in range(m):
                 out[j, i] = z[i]
-
-
-def play_outputs_strided(u: FloatArray, r: FloatArray, z: FloatArray, stride: int) -> FloatArray:
-    """``play_outputs(u, r, z)[::stride]`` without the whole matrix (a model search on a long
-    record: a 10^6-sample record's 20 operators held 160 MB to keep 30,000 rows)."""
-    out = np.empty(((u.shape[0] + stride - 1) // stride, r.shape[0]))
-    play_outputs_strided_into(u, r, z, stride, out)
-    return out
 
 
 @njit

@@ -60,8 +60,9 @@ from .base import InverseCompensator, check_dt, register_kind
 #: Most passes of the inverse's bracketed Newton solve (module docstring); it ends at the best
 #: point found if the residual has not reached rounding by then.
 SOLVE_STEPS = 60
-#: The earlier name of :data:`SOLVE_STEPS` (the solver bisected).
-BISECTION_STEPS = SOLVE_STEPS
+#: A residual within this fraction of the sum of its terms' sizes is at their rounding: the
+#: inverse's solve stops there (64 eps).
+RESIDUAL_ROUNDING = 64.0 * 2.220446049250313e-16
 
 
 def grid_size(n: int) -> int:
@@ -130,18 +131,6 @@ def preisach_value(v: float, alpha: FloatArray, beta: FloatArray, inv_delta: flo
 
 
 @njit
-def preisach_outputs(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float,
-                     z: FloatArray) -> FloatArray:  # pragma: no cover
-    """Every hysteron's state for every sample, (N, n_hysterons): the regressors of a fit."""
-    out = np.empty((v.shape[0], z.shape[0]))
-    for k in range(v.shape[0]):
-        preisach_step(v[k], alpha, beta, inv_delta, z)
-        for h in range(z.shape[0]):
-            out[k, h] = z[h]
-    return out
-
-
-@njit
 def preisach_outputs_into(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
                           out: FloatArray, stride: int = 1) -> None:  # pragma: no cover
     """:func:`preisach_outputs` at the rows ``0, stride, 2 stride, ...`` written into ``out`` (one
@@ -155,11 +144,12 @@ def preisach_outputs_into(v: FloatArray, alpha: FloatArray, beta: FloatArray, in
                 out[j, h] = z[h]
 
 
-def preisach_outputs_strided(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
-                             stride: int) -> FloatArray:
-    """``preisach_outputs(...)[::stride]`` without the whole matrix."""
-    out = np.empty(((v.shape[0] + stride - 1) // stride, z.shape[0]))
-    preisach_outputs_into(v, alpha, beta, inv_delta, z, out, stride)
+@njit
+def preisach_outputs(v: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float,
+                     z: FloatArray) -> FloatArray:  # pragma: no cover
+    """Every hysteron's state for every sample, (N, n_hysterons): the regressors of a fit."""
+    out = np.empty((v.shape[0], z.shape[0]))
+    preisach_outputs_into(v, alpha, beta, inv_delta, z, out, 1)
     return out
 
 
@@ -242,7 +232,7 @@ def preisach_solve(target: float, v_prev: float, alpha: FloatArray, beta: FloatA
             fn = offset + slope * xn + acc - target
             if abs(fn) < fbest:
                 best, fbest = xn, abs(fn)
-            if abs(fn) <= 64.0 * 2.220446049250313e-16 * (abs(target) + abs(offset) + abs(slope * xn) + abs(acc)):
+            if abs(fn) <= RESIDUAL_ROUNDING * (abs(target) + abs(offset) + abs(slope * xn) + abs(acc)):
                 break
             if fn < 0.0:
                 lo = xn
@@ -554,7 +544,7 @@ static double {fn}(double target)
                 best = xn;
                 fbest = fabs(fn);
             }}
-            if (fabs(fn) <= 64.0 * 2.220446049250313e-16 * (fabs(target) + fabs({off}) + fabs({slope} * xn) + fabs(acc))) break;
+            if (fabs(fn) <= {c.num(RESIDUAL_ROUNDING)} * (fabs(target) + fabs({off}) + fabs({slope} * xn) + fabs(acc))) break;
             if (fn < 0.0) lo = xn;
             else hi = xn;
             halve = fabs(fn) > 0.5 * fabs(fx);
