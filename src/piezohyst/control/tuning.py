@@ -350,6 +350,10 @@ RIPPLE_LIMIT = 2.0
 RIPPLE_GROWTH = 1.3
 #: Seconds the feedforward alone holds the stage after a trial whose oscillation grew.
 RING_DOWN_S = 0.5
+#: A hold is settled (:func:`tune_integral_safely`, step 2) when its error is within this many
+#: times the probe's own effect; a trial that starts further off first lets the feedback take
+#: the error out, probe off.
+SETTLED_PROBES = 2.0
 
 
 def _error_ripple(fbs: FloatArray, fb0: float, gain: float) -> float:
@@ -412,12 +416,18 @@ def tune_integral_safely(
        the first gain whose answer overshoots by more than ``overshoot_limit`` (a loop losing its
        damping, seen at the probe's small amplitude) or that moves further than the probe can
        explain (aborted at once), and never goes past ``max_factor * ki_model`` or the model's
-       ultimate gain divided by ``back_off``. A gain is not well damped either when, once each
-       probe's answer has settled, the error's sample-to-sample RMS is more than
-       :data:`RIPPLE_LIMIT` times the feedforward-alone noise and grows by more than
-       :data:`RIPPLE_GROWTH` from one probe to the next one the same way: an oscillation building
-       under an answer that looks damped (a low, lightly damped resonance the model lacks); the
-       stage then rests :data:`RING_DOWN_S` before the next trial. The command then ramps back
+       ultimate gain divided by ``back_off``. A trial that starts with the hold further off the
+       level than :data:`SETTLED_PROBES` times the probe's effect (the model off at that level,
+       the stage still creeping or drifting) first lets the feedback take that error out, probe
+       off, within the same bounds widened by that error (and the command that cancels it); the
+       probes come after, so their answers are answers to the probes and not to the offset
+       (without this, every trial on such a stage was aborted and it got no feedback at all).
+       A gain is not well damped either when, once each probe's answer has settled, the error's
+       sample-to-sample RMS is more than :data:`RIPPLE_LIMIT` times the feedforward-alone noise
+       and grows by more than :data:`RIPPLE_GROWTH` from one probe to the next one the same way:
+       an oscillation building under an answer that looks damped (a low, lightly damped
+       resonance the model lacks); the stage then rests :data:`RING_DOWN_S` before the next
+       trial. The command then ramps back
        to rest. The loop is never taken near instability, and the commands stay within a few
        probe sizes of the hold.
     3. ``ki`` = the largest well-damped gain / (``back_off`` * the large-signal slope ratio). The
@@ -484,15 +494,19 @@ def tune_integral_safely(
     ripple0 = math.sqrt(2.0) * noise  # the error's sample-to-sample RMS with the feedforward alone
     probe = min(opt.probe_fraction * lim.span, 0.5 * lim.max_step)
     y_probe = probe / volts_per_um  # µm the probe moves the stage, roughly
+    tol_e, tol_fb = 4 * y_probe + 10 * noise, 4 * probe
     pid = PID(0.0, opt.start_fraction * ki_model, 0.0, dt)
     trials: list[tuple[float, float]] = []
     experiments: list[dict[str, Any]] = []
     state: dict[str, Any] = {"y": float(ys[-1]), "sat": 0, "u_lo": math.inf, "u_hi": -math.inf}
 
-    def run(n: int, probe_on: bool, fb0: float, e0: float, check: bool) -> FloatArray | None:
-        """n samples at the hold; the feedback's outputs, or None if the trial had to stop."""
+    def run(n: int, probe_on: bool, fb0: float, e0: float, check: bool, offset: float = 0.0) -> FloatArray | None:
+        """n samples at the hold; the feedback's outputs, or None if the trial had to stop. With
+        ``offset`` (µm: the hold's error the feedback is to cancel) the error may move that much
+        further, and the feedback the command that cancels it."""
         kw = dict(n=n, level=level, add=probe if probe_on else 0.0, check=check, e0=e0, fb0=fb0,
-                  tol_e=4 * y_probe + 10 * noise, tol_fb=4 * probe, vpu=volts_per_um, state=state)
+                  tol_e=tol_e + abs(offset), tol_fb=tol_fb + abs(offset) * volts_per_um,
+                  vpu=volts_per_um, state=state)
         fast = run_hold(plant, ff, pid, **kw)  # the same loop, compiled, where the parts have kernels
         return hold_at_level(plant, ff, pid, **kw) if fast is NotImplemented else fast  # type: ignore[no-any-return]
 
@@ -508,7 +522,15 @@ def tune_integral_safely(
         aborted = False
         integral0 = pid.integral
         state["u_lo"], state["u_hi"] = math.inf, -math.inf
-        for rep in range(2 * opt.repeats):
+        offset = level - state["y"]
+        settle = abs(offset) > SETTLED_PROBES * y_probe
+        if settle:
+            # the feedforward alone holds the level with an error larger than the probe's effect
+            # (a model off at this level, the stage still creeping): the feedback first takes it
+            # out, probe off, so that the probes' answers are answers to the probes
+            fb0 = pid.integral * volts_per_um
+            aborted = run(n_p, False, fb0, offset, True, offset=offset) is None
+        for rep in range(0 if aborted else 2 * opt.repeats):
             sign = 1.0 if rep % 2 == 0 else -1.0  # probe on, then off
             fb0 = pid.integral * volts_per_um
             fbs = run(n_p, sign > 0, fb0, level - state["y"], True)
@@ -547,6 +569,7 @@ def tune_integral_safely(
         experiments.append({"ki": ki, "overshoot": None if aborted else overshoot, "aborted": aborted,
                             "samples": n_p, "well_damped": ok, "probe_V": probe,
                             "command_band_V": (state["u_lo"], state["u_hi"]),
+                            "hold_error_um": offset, "settled_first": settle,
                             "ripple_over_noise": ripple, "ripple_growth": growth, "oscillation_grows": grows,
                             "ripples": [r / ripple0 if ripple0 > 0 else 0.0 for r in ringing]})
         return ok
