@@ -102,3 +102,29 @@ def test_a_model_that_misses_the_loop_shape_is_flagged():
     y = 0.02 * u + 0.6 * np.tanh((u - 50.0) / 20.0) + 0.3 * np.sign(np.gradient(u)) * (u / 100.0) ** 3
     fit = ph.fit_model(u, y, DT, kind="pi", n=5)
     assert any("direction" in w or "hold-out error" in w for w in fit.warnings), fit.warnings
+
+
+def test_the_search_keeps_few_designs_and_chooses_exactly_as_with_all(monkeypatch):
+    # the search keeps only the last few designs and static parts (memory: 1.28 GB -> 0.56 GB
+    # peak on the VirtualRig's commissioning record); one it dropped is built again bit for bit,
+    # with the Gram matrices it had, so every candidate scores exactly as when all are kept
+    import piezohyst.identify.select as sel
+
+    rng = np.random.default_rng(3)
+    true = ph.Preisach(lo=0.0, hi=100.0, weights=rng.random(ph.models.preisach.grid_size(6)) * 0.01, slope=0.02)
+    u = record(freq=2.0)
+    y = true.simulate(u) + 0.01 * np.convolve(rng.standard_normal(u.size), np.ones(20) / 20, "same")
+
+    def run():
+        fit = ph.fit_model(u, y, DT)
+        return fit.info["chosen"], [(c["label"], c["holdout_rmse"]) for c in fit.info["candidates"]], fit.model.to_dict()
+
+    monkeypatch.setattr(sel, "PREPARED_KEPT", 1)
+    monkeypatch.setattr(sel, "STATIC_KEPT", 1)
+    few = run()
+    monkeypatch.setattr(sel, "PREPARED_KEPT", 10**6)
+    monkeypatch.setattr(sel, "STATIC_KEPT", 10**6)
+    every = run()
+    assert len(few[1]) > 50
+    assert few[0] == every[0] and few[1] == every[1]
+    assert repr(few[2]) == repr(every[2])

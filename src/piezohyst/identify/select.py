@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
 
@@ -47,13 +48,17 @@ import numpy as np
 from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
-from .linear import DEFAULT_MARGIN, Structure, fit_prepared, fit_structure, mean_slope, prepare
+from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals, unpack_data
 
 #: Relative drop of the hold-out error a more complex candidate must bring to be preferred.
 MIN_GAIN = 0.02
 #: Fraction of the training record held out when no validation data are given.
 HOLDOUT = 0.3
+#: Designs (one per structure) the search keeps at once (:meth:`_Scorer._prepared`).
+PREPARED_KEPT = 4
+#: Static parts' columns the search keeps at once (:class:`_Blocks`).
+STATIC_KEPT = 4
 #: Rows the search fits each candidate on (every k-th of a longer record; the winner is refitted
 #: on every row).
 SEARCH_ROWS = 30000
@@ -141,9 +146,12 @@ class _Scorer:
         #: the search fits on every stride-th row (at most SEARCH_ROWS rows); the refit uses all
         self.stride = max(1, n_fit // SEARCH_ROWS)
         self.tried: list[_Candidate] = []
-        self._prep: dict[Any, Any] = {}
+        #: the prepared structures (design matrices), the most recently used last; at most
+        #: PREPARED_KEPT of them, an evicted one's Gram matrices kept in _grams
+        self._prep: OrderedDict[Any, Prepared] = OrderedDict()
+        self._grams: dict[Any, dict[int, FloatArray]] = {}
         self._done: dict[Structure, _Candidate] = {}
-        self._blocks: dict[Any, Any] = {}
+        self._blocks = _Blocks()
 
     def score_model(self, model: Any, delay: int, pred_train: FloatArray | None) -> tuple[float, list[float]]:
         if not self.validation:
@@ -158,15 +166,34 @@ class _Scorer:
             out.append(float(np.sqrt(np.mean(resid**2))))
         return float(np.mean(out)), out
 
+    def _prepared(self, key: Structure) -> Prepared:
+        """The design of ``key`` (a structure without its delay: every delay fits the same rows).
+
+        Only the last :data:`PREPARED_KEPT` designs used are kept: each is a matrix of the
+        search's rows by the structure's columns (12 MB for a P-I model with lags on 50,000 rows,
+        70 MB for a 16-level Preisach grid), and a search tries dozens of structures, mostly one
+        after the other (a delay search, then the next input lag). Keeping every one cost 1 GB on
+        a 10^5-sample record, and the time to fault that much fresh memory in. An evicted design's
+        Gram matrices are kept: built again, it computes exactly what it would have (its
+        matrices are recomputed bit for bit from the cached blocks, and its Gram cache is as it was).
+        """
+        pre = self._prep.get(key)
+        if pre is not None:
+            self._prep.move_to_end(key)
+            return pre
+        pre = prepare(self.u, self.dt, key, u_ref=self.u[: self.n_fit], cache=self._blocks, stride=self.stride)
+        pre._gram = self._grams.pop(key, pre._gram)
+        self._prep[key] = pre
+        if len(self._prep) > PREPARED_KEPT:
+            old_key, old = self._prep.popitem(last=False)
+            self._grams[old_key] = old._gram
+        return pre
+
     def linear(self, st: Structure) -> _Candidate:
         done = self._done.get(st)
         if done is not None:
             return done
-        key = replace(st, delay=0)
-        pre = self._prep.get(key)
-        if pre is None:
-            pre = prepare(self.u, self.dt, st, u_ref=self.u[: self.n_fit], cache=self._blocks, stride=self.stride)
-            self._prep[key] = pre
+        pre = self._prepared(replace(st, delay=0))
         t0 = time.perf_counter()
         d, n = st.delay, self.u.size
         if self.validation:
@@ -188,6 +215,25 @@ class _Scorer:
         self.tried.append(c)
         self._done[st] = c
         return c
+
+
+class _Blocks(OrderedDict):  # type: ignore[type-arg]
+    """The regressor blocks structures share (:func:`~piezohyst.identify.linear.prepare`'s
+    ``cache``), keeping only the last :data:`STATIC_KEPT` static parts used: each is the
+    search's rows by the static part's columns (6 MB for 20 P-I operators, 70 MB for a 16-level
+    Preisach grid), a search makes dozens, and one dropped is computed again bit for bit."""
+
+    def __getitem__(self, key: Any) -> Any:
+        value = super().__getitem__(key)
+        self.move_to_end(key)
+        return value
+
+    def __setitem__(self, key: Any, value: Any) -> None:
+        super().__setitem__(key, value)
+        self.move_to_end(key)
+        statics = [k for k in self if k[0] == "static"]
+        for k in statics[:max(len(statics) - STATIC_KEPT, 0)]:
+            del self[k]
 
 
 def _best(cands: Sequence[_Candidate]) -> _Candidate:
