@@ -9,7 +9,7 @@ import pytest
 import piezohyst as ph
 from piezohyst.cli import main
 
-from .plants import PIPlant
+from .plants import PIPlant, error_below
 
 
 @pytest.fixture(scope="module")
@@ -48,9 +48,14 @@ def test_rate_dependent_model_beats_rate_independent_at_5hz(rig_and_controller):
 
 
 def test_feedback_improves_on_feedforward(rig_and_controller):
+    # in the band the integral acts in; the whole RMSE of both is the sensor's 3 nm noise floor
+    # (measured 3.12 nm feedforward alone, 3.15 nm with feedback: the feedback passes some noise on)
     rig, ctl = rig_and_controller
     r = ref(3.0, rig)
-    assert ctl.track(r, learning=False).rmse < ctl.track(r, feedback=False, learning=False).rmse
+    fb, ff = ctl.track(r, learning=False), ctl.track(r, feedback=False, learning=False)
+    assert error_below(fb) < error_below(ff)
+    assert abs(np.mean(fb.error[fb.period:])) < 0.1 * abs(np.mean(ff.error[ff.period:]))  # no offset left
+    assert fb.rmse < 1.05 * ff.rmse
 
 
 def test_learning_reduces_the_error_of_a_mismatched_model():

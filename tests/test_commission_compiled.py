@@ -8,17 +8,28 @@ import pytest
 
 import piezohyst as ph
 from piezohyst import commissioning
+from piezohyst.models import rate
 from piezohyst.control.tracking import UnstableLoopError
 
 from .plants import PIPlant
 
 
-@pytest.fixture(scope="module")
-def controller():
+@pytest.fixture(scope="module", params=["pi", "preisach"])
+def controller(request):
+    """The VirtualRig commissioned, its model refitted as a rate-dependent model of each static part
+    the compiled loops take (a P-I model or a Preisach grid), and its feedback tuned."""
     rig = ph.VirtualRig(seed=0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ph.ClippingWarning)
-        return ph.commission(rig)
+        ctl = ph.commission(rig, tune=False)
+        ds = ctl.identification
+        n_id = commissioning.identification_length(rig.dt, rig.u_range)
+        fit = ph.fit_model(ds.u, ds.y, rig.dt, "rate-dependent", statics=(request.param,), holdout=int(ds.u.size - n_id))
+        ctl = dataclasses.replace(ctl, fit=fit)
+        ctl.tune()
+    args = ctl.feedforward()._kernel_args()
+    assert args is not None and args[0] == {"pi": rate.RATE_PI, "preisach": rate.RATE_PREISACH}[request.param]
+    return ctl
 
 
 def _state(rig):

@@ -575,7 +575,7 @@ def _loop_kernel_args(plant: Any, ff: Any, pid: Any) -> tuple[Any, ...] | None:
 
     if type(plant) is not VirtualRig or (pid is not None and type(pid) is not PID) or type(ff) is not RateCompensator:
         return None
-    return ff._pi_kernel_args()
+    return ff._kernel_args()  # type: ignore[no-any-return]
 
 
 def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, pid: Any, watch: LoopWatch,
@@ -616,6 +616,7 @@ def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, p
         if end_of_chunk is not None and k1 - k0 == chunk:
             end_of_chunk(k1 - 1)
     # the objects' states as the Python loop leaves them
+    ff._kernel_back(ff_args)
     guard.set_kernel_state(g_state)
     watch.n_lo, watch.n_hi = int(w_state[0]), int(w_state[1])
     limits_back(ff, ff_lim_state)

@@ -36,7 +36,7 @@ from .._validation import FloatArray
 from ..models.bouc_wen_inverse import BoucWenFeedforward, bw_ff_step
 from ..models.pi import InversePIFeedforward
 from ..models.play import pi_step
-from ..models.rate import _rate_pi_inverse_step
+from ..models.rate import rate_inverse_step
 from ..plant import guard_step
 from ..rig import VirtualRig, _rig_step
 from .pid import PID
@@ -261,11 +261,11 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
                   # the rig and its noise for samples k0..k1-1
                   p: FloatArray, kv_a: FloatArray, kv_g: FloatArray, amp_a: float, st: FloatArray,
                   line: FloatArray, consts: FloatArray, noise: FloatArray,
-                  # the rate-dependent P-I inverse (RateCompensator._pi_kernel_args) and the
+                  # the rate-dependent inverse (RateCompensator._kernel_args: P-I or Preisach) and the
                   # compensator's limits [u_lo, u_hi, max_slew] and their state [has_last, u_last, limited]
-                  ff_r: FloatArray, ff_w: FloatArray, ff_z: FloatArray, ff_in: float, ff_out: float,
-                  ff_a: FloatArray, ff_c: FloatArray, ff_s: FloatArray, ff_b: float, ff_vprev: FloatArray,
-                  ff_lim: FloatArray, ff_lim_state: FloatArray,
+                  ff_kind: int, ff_f: FloatArray, ff_i1: FloatArray, ff_i2: FloatArray, ff_i3: FloatArray,
+                  ff_i4: FloatArray, ff_vlast: FloatArray, ff_a: FloatArray, ff_c: FloatArray, ff_s: FloatArray,
+                  ff_b: float, ff_vprev: FloatArray, ff_lim: FloatArray, ff_lim_state: FloatArray,
                   # the PID (as in _closed_loop)
                   fb_on: bool, pid_g: FloatArray, pid_state: FloatArray,
                   # GuardedPlant: [low, high, max_step, tol], state [last, clipped, slew_limited,
@@ -277,7 +277,7 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
                   loop_state: FloatArray) -> int:  # pragma: no cover
     """Samples ``k0..k1-1`` of the loop of :meth:`CommissionedController._track_step
     <piezohyst.commissioning.CommissionedController._track_step>`: integral feedback on the command,
-    the rate-dependent P-I inverse fed ``d`` samples ahead (plus the learned correction), the
+    the rate-dependent inverse (P-I or Preisach) fed ``d`` samples ahead (plus the learned correction), the
     safe layer, the rig, the checks of LoopWatch. The sample where it gave up (anything a check
     or a step would raise on), or :data:`COMPLETED`."""
     n = r.shape[0]
@@ -300,7 +300,8 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
         target = r[j] + (corr[j % p_len] if has_corr else 0.0)
         if not math.isfinite(target):
             return k
-        raw = _rate_pi_inverse_step(target, ff_r, ff_w, ff_z, ff_in, ff_out, ff_a, ff_c, ff_s, ff_b, ff_vprev)
+        raw = rate_inverse_step(target, ff_kind, ff_f, ff_i1, ff_i2, ff_i3, ff_i4, ff_vlast, ff_a, ff_c, ff_s, ff_b,
+                                ff_vprev)
         if math.isnan(raw):
             return k
         v = output_limits(raw, ff_lim, ff_lim_state)
@@ -346,10 +347,10 @@ HOLD_CHECK, HOLD_FF, HOLD_COMMAND = 1, 2, 3
 @njit
 def _hold_loop(n: int, level: float, add: float, check: bool, e0: float, fb0: float, tol_e: float, tol_fb: float,
                fbs: FloatArray, vpu: float,
-               # the rate-dependent P-I inverse (RateCompensator._pi_kernel_args), its limits and their state
-               ff_r: FloatArray, ff_w: FloatArray, ff_z: FloatArray, ff_in: float, ff_out: float,
-               ff_a: FloatArray, ff_c: FloatArray, ff_s: FloatArray, ff_b: float, ff_vprev: FloatArray,
-               ff_lim: FloatArray, ff_lim_state: FloatArray,
+               # the rate-dependent inverse (RateCompensator._kernel_args), its limits and their state
+               ff_kind: int, ff_f: FloatArray, ff_i1: FloatArray, ff_i2: FloatArray, ff_i3: FloatArray,
+               ff_i4: FloatArray, ff_vlast: FloatArray, ff_a: FloatArray, ff_c: FloatArray, ff_s: FloatArray,
+               ff_b: float, ff_vprev: FloatArray, ff_lim: FloatArray, ff_lim_state: FloatArray,
                pid_g: FloatArray, pid_state: FloatArray,
                # GuardedPlant (as in _guarded_loop)
                guard: FloatArray, guard_state: FloatArray,
@@ -371,7 +372,8 @@ def _hold_loop(n: int, level: float, add: float, check: bool, e0: float, fb0: fl
     for k in range(n):
         fb = pid_step(level - y, sat, pid_g, pid_state) * vpu
         fbs[k] = fb
-        raw = _rate_pi_inverse_step(level, ff_r, ff_w, ff_z, ff_in, ff_out, ff_a, ff_c, ff_s, ff_b, ff_vprev)
+        raw = rate_inverse_step(level, ff_kind, ff_f, ff_i1, ff_i2, ff_i3, ff_i4, ff_vlast, ff_a, ff_c, ff_s, ff_b,
+                                ff_vprev)
         if math.isnan(raw):
             loop_state[4] = HOLD_FF
             return k
@@ -397,7 +399,7 @@ def run_hold(guard: Any, ff: Any, pid: Any, *, n: int, level: float, add: float,
              fb0: float, tol_e: float, tol_fb: float, vpu: float, state: dict[str, Any]) -> Any:
     """The safe tuning's hold compiled (:func:`_hold_loop`) when the parts have kernels: a
     :class:`~piezohyst.plant.GuardedPlant` around a :class:`~piezohyst.rig.VirtualRig`, a
-    rate-dependent P-I compensator, a :class:`PID` (exact types). Returns the feedback's outputs,
+    rate-dependent compensator of a P-I or Preisach model, a :class:`PID` (exact types). Returns the feedback's outputs,
     None when the check stopped the hold, or ``NotImplemented`` (the parts have no kernels: the
     caller runs its Python loop). ``state`` (``y``, ``sat``, ``u_lo``, ``u_hi``) and the objects'
     states are left as the Python loop leaves them; where that loop would raise (a value that is
@@ -409,7 +411,7 @@ def run_hold(guard: Any, ff: Any, pid: Any, *, n: int, level: float, add: float,
     if (type(guard) is not GuardedPlant or type(rig) is not VirtualRig or type(pid) is not PID
             or type(ff) is not RateCompensator):
         return NotImplemented
-    ff_args = ff._pi_kernel_args()
+    ff_args = ff._kernel_args()
     if ff_args is None:
         return NotImplemented
     ff_lim, ff_lim_state = limits_arrays(ff)
@@ -426,6 +428,7 @@ def run_hold(guard: Any, ff: Any, pid: Any, *, n: int, level: float, add: float,
     why = int(loop_state[4]) if k != COMPLETED else 0
     rig._n += int(g_state[5]) - guard.sent
     guard.set_kernel_state(g_state)
+    ff._kernel_back(ff_args)
     limits_back(ff, ff_lim_state)
     pid_back(pid, pid_state)
     state["y"], state["sat"] = float(loop_state[0]), int(loop_state[1])

@@ -30,7 +30,8 @@ the excitation's frequency band ``f_lo .. f_hi`` (between 1 % and 98 % of the in
 the record's length and sample rate. Delays up to 5 % of the fastest period (at least 5
 samples); input lags from two samples to ``0.2 / (2 pi f_hi)``, searched jointly with the delay
 (the two trade against each other); output lags two per decade from ``0.016 / f_hi`` (or two
-samples) to half the fitting part of the record (creep; a lag longer than the record can tell from a constant
+samples), and half the fitting part of the record as the last one where the decades stop more
+than a quarter decade short of it (creep; a lag longer than the record can tell from a constant
 overfits: it drifts on new data, and the hold-out shows it), tried as two sets:
 rate dependence (``tau <= 1 / (2 pi f_lo)``) and rate dependence with creep (all).
 """
@@ -118,6 +119,10 @@ def search_ranges(u: FloatArray, dt: float | None, n_fit: int) -> SearchRanges:
     tau_lo = max(0.016 / f_hi, 2 * dt)
     tau_hi = t_fit / 2
     taus = _geometric(tau_lo, tau_hi, math.sqrt(10.0))
+    if taus and tau_hi > taus[-1] * 10 ** 0.25:
+        # the grid's last step can fall up to half a decade short of the longest lag the record
+        # identifies: a creep of a few seconds, fitted with lags that end below it, drifts
+        taus = (*taus, tau_hi)
     # rate dependence: lags within the excitation's band (tau <= 1 / (2 pi f_lo)); creep: longer ones
     rate = tuple(t for t in taus if t <= 1.0 / (2 * math.pi * f_lo)) or taus[:1]
     return SearchRanges(f_lo, f_hi, max_delay, input_taus, rate, taus)

@@ -45,6 +45,10 @@ from .play import pi_step
 from .preisach import SOLVE_STEPS, PreisachInverse, preisach_solve
 
 
+#: An argument a kernel does not use (see :meth:`RateCompensator._kernel_args`).
+_NOTHING = np.zeros(1)
+
+
 @njit
 def _lag_kernel(x: FloatArray, a: float) -> FloatArray:  # pragma: no cover - compiled
     out = np.empty(x.shape[0])
@@ -99,32 +103,65 @@ def lag_factor(tau: float, dt: float) -> float:
 
 
 @njit
+def _rate_preisach_inverse_step(x_d: float, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
+                                mu: FloatArray, slope: float, offset: float, steps: int, v_last: FloatArray,
+                                a: FloatArray, c: FloatArray, s: FloatArray, b: float,
+                                v_prev: FloatArray) -> float:  # pragma: no cover - compiled
+    """One sample of :class:`RateCompensator` with a Preisach static part: ``known``, the Newton
+    solve of :func:`~piezohyst.models.preisach.preisach_solve` from the last solution
+    ``v_last`` (:class:`~piezohyst.models.preisach.PreisachInverse`'s), the lags, the input lag's
+    inverse. NaN, with no state changed, when the solve's target is not finite."""
+    known = 0.0
+    for i in range(a.shape[0]):
+        known += c[i] * a[i] * s[i]
+    x = x_d - known
+    if not math.isfinite(x):
+        return math.nan
+    v = preisach_solve(x, v_last[0], alpha, beta, inv_delta, z, mu, slope, offset, steps)
+    v_last[0] = v
+    for i in range(a.shape[0]):
+        s[i] = (1.0 - a[i]) * v + a[i] * s[i]
+    u = v if b == 0.0 else (v - b * v_prev[0]) / (1.0 - b)
+    v_prev[0] = v
+    return u
+
+
+@njit
 def _rate_preisach_inverse_run(x_d: FloatArray, alpha: FloatArray, beta: FloatArray, inv_delta: float, z: FloatArray,
                                mu: FloatArray, slope: float, offset: float, steps: int, v_last: FloatArray,
                                a: FloatArray, c: FloatArray, s: FloatArray, b: float,
                                v_prev: FloatArray) -> FloatArray:  # pragma: no cover - compiled
-    """:class:`RateCompensator` over a whole trajectory when the static part is a Preisach model:
-    the Python step's arithmetic, operation for operation (``known``, the Newton solve of
-    :func:`~piezohyst.models.preisach.preisach_solve`, the lags, the input lag's inverse), in one
-    compiled call. Stops with NaN from the first sample whose solve target is not finite (the
-    caller then runs the Python steps, which raise there)."""
+    """:class:`RateCompensator` over a whole trajectory when the static part is a Preisach model,
+    in one compiled call: its steps. NaN from the first sample whose solve target is not finite
+    (the caller then runs the Python steps, which raise there)."""
     n = x_d.shape[0]
     out = np.empty(n)
     for k in range(n):
-        known = 0.0
-        for i in range(a.shape[0]):
-            known += c[i] * a[i] * s[i]
-        x = x_d[k] - known
-        if not math.isfinite(x):
+        out[k] = _rate_preisach_inverse_step(x_d[k], alpha, beta, inv_delta, z, mu, slope, offset, steps, v_last,
+                                             a, c, s, b, v_prev)
+        if math.isnan(out[k]):
             out[k:] = math.nan
             return out
-        v = preisach_solve(x, v_last[0], alpha, beta, inv_delta, z, mu, slope, offset, steps)
-        v_last[0] = v
-        for i in range(a.shape[0]):
-            s[i] = (1.0 - a[i]) * v + a[i] * s[i]
-        out[k] = v if b == 0.0 else (v - b * v_prev[0]) / (1.0 - b)
-        v_prev[0] = v
     return out
+
+
+#: The static part of a rate-dependent compensator, as :func:`rate_inverse_step` takes it.
+RATE_PI, RATE_PREISACH = 0, 1
+
+
+@njit
+def rate_inverse_step(x_d: float, kind: int, f: FloatArray, i1: FloatArray, i2: FloatArray, i3: FloatArray,
+                      i4: FloatArray, v_last: FloatArray, a: FloatArray, c: FloatArray, s: FloatArray, b: float,
+                      v_prev: FloatArray) -> float:  # pragma: no cover - compiled
+    """One sample of :class:`RateCompensator`, whichever static part it inverts: the arguments of
+    :meth:`RateCompensator._kernel_args` (P-I: ``f = [input offset, output offset]``, ``i1, i2,
+    i3`` = thresholds, weights, state; Preisach: ``f = [1 / delta, slope, offset, solve steps]``,
+    ``i1 .. i4`` = alpha, beta, state, weights, ``v_last`` the last solution). NaN, with no state
+    changed, when the static inverse's input is not finite. One kernel for both, so the compiled
+    loops (:mod:`piezohyst.control.compiled_loop`) take either."""
+    if kind == RATE_PI:
+        return _rate_pi_inverse_step(x_d, i1, i2, i3, f[0], f[1], a, c, s, b, v_prev)
+    return _rate_preisach_inverse_step(x_d, i1, i2, f[0], i3, i4, f[1], f[2], int(f[3]), v_last, a, c, s, b, v_prev)
 
 
 @register_kind("rate-dependent", "rate-dependent-pi", "rate-pi", "rate")
@@ -350,22 +387,36 @@ class RateCompensator(Compensator):
         """The input-lag state ``v(k-1)``."""
         return float(self._v_prev[0])
 
-    def _pi_kernel_args(self) -> tuple[Any, ...] | None:
-        """The arguments of the compiled recursion after ``x_d``, when the static part's inverse is
-        a P-I stepper (one compiled call per sample instead of the Python loop below)."""
+    def _kernel_args(self) -> tuple[Any, ...] | None:
+        """The arguments of :func:`rate_inverse_step` after ``x_d``, when the static part's inverse
+        is a P-I stepper or a Preisach inverse (exact types): one compiled call per sample instead
+        of the Python loop of :meth:`_step`, and what the compiled loops take. Their arrays are the
+        steppers' own state; a Preisach inverse's last solution is copied in (``v_last``): take it
+        back with :meth:`_kernel_back` after a kernel ran."""
         inv = self._inverse
-        if type(inv) is not PIStepper:
-            return None
         m = self.model
-        return (inv._r, inv._w, inv._z, inv._in, inv._out, m._a, m.lag_weights, self._s, self._b, self._v_prev)
+        if type(inv) is PIStepper:
+            return (RATE_PI, np.array([inv._in, inv._out]), inv._r, inv._w, inv._z, _NOTHING, _NOTHING,
+                    m._a, m.lag_weights, self._s, self._b, self._v_prev)
+        if type(inv) is PreisachInverse:
+            return (RATE_PREISACH, np.array([inv._inv_d, inv._s, inv.model.offset, float(SOLVE_STEPS)]), inv._a,
+                    inv._b, inv._z, inv.model.weights, np.array([inv._v]), m._a, m.lag_weights, self._s, self._b,
+                    self._v_prev)
+        return None
+
+    def _kernel_back(self, args: tuple[Any, ...]) -> None:
+        """Take back the state :meth:`_kernel_args` copied out (a Preisach inverse's last solution)."""
+        if args[0] == RATE_PREISACH:
+            self._inverse._v = float(args[6][0])
 
     def _step(self, x_d: float) -> float:
-        args = self._pi_kernel_args()
+        args = self._kernel_args()
         if args is not None:
-            u = _rate_pi_inverse_step(float(x_d), *args)
+            u = rate_inverse_step(float(x_d), *args)
             if math.isnan(u):
-                lag_part = sum(float(c) * float(a) * s for c, a, s in zip(args[6], args[5], self._s))
+                lag_part = sum(float(c) * float(a) * s for c, a, s in zip(args[8], args[7], self._s))
                 raise ValueError(f"u_k must be finite, got {x_d - lag_part!r}")
+            self._kernel_back(args)
             return float(u)
         m = self.model
         a, c = m._a, m.lag_weights
@@ -381,22 +432,18 @@ class RateCompensator(Compensator):
         return u
 
     def _command(self, x_d: FloatArray) -> FloatArray:
-        args = self._pi_kernel_args()
+        args = self._kernel_args()
         if args is None:
-            inv = self._inverse
-            if type(inv) is PreisachInverse:  # the Newton solves and the lags in one compiled call
-                m = self.model
-                v_last = np.array([inv._v])
-                out = _rate_preisach_inverse_run(
-                    np.ascontiguousarray(x_d, dtype=np.float64), inv._a, inv._b, inv._inv_d, inv._z,
-                    inv.model.weights, inv._s, inv.model.offset, SOLVE_STEPS, v_last, m._a, m.lag_weights, self._s,
-                    self._b, self._v_prev)
-                inv._v = float(v_last[0])
-                if not np.isnan(out).any():
-                    return out
-                self.reset()  # the sample where the stepper raises, from a fresh start
             return super()._command(x_d)
-        out = _rate_pi_inverse_run(np.ascontiguousarray(x_d, dtype=np.float64), *args)
+        xs = np.ascontiguousarray(x_d, dtype=np.float64)
+        if args[0] == RATE_PREISACH:  # the Newton solves and the lags in one compiled call
+            _, f, alpha, beta, z, mu, v_last, a, c, s, b, v_prev = args
+            out = _rate_preisach_inverse_run(xs, alpha, beta, f[0], z, mu, f[1], f[2], SOLVE_STEPS, v_last, a, c, s,
+                                             b, v_prev)
+            self._kernel_back(args)
+        else:
+            _, f, r, w, z, _, _, a, c, s, b, v_prev = args
+            out = _rate_pi_inverse_run(xs, r, w, z, f[0], f[1], a, c, s, b, v_prev)
         if np.isnan(out).any():  # the sample where the stepper raises, from a fresh start
             self.reset()
             return super()._command(x_d)
