@@ -381,6 +381,7 @@ class RateCompensator(Compensator):
         self._inverse.reset()
         self._s = np.zeros(self.model.taus.size)
         self._v_prev = np.zeros(1)
+        self._args = self._build_kernel_args()
 
     @property
     def _v(self) -> float:
@@ -391,8 +392,11 @@ class RateCompensator(Compensator):
         """The arguments of :func:`rate_inverse_step` after ``x_d``, when the static part's inverse
         is a P-I stepper or a Preisach inverse (exact types): one compiled call per sample instead
         of the Python loop of :meth:`_step`, and what the compiled loops take. Their arrays are the
-        steppers' own state; a Preisach inverse's last solution is copied in (``v_last``): take it
-        back with :meth:`_kernel_back` after a kernel ran."""
+        steppers' own state (made once per reset); a Preisach inverse's last solution is held in
+        ``v_last``: give it back with :meth:`_kernel_back` after a kernel ran."""
+        return self._args  # type: ignore[no-any-return]
+
+    def _build_kernel_args(self) -> tuple[Any, ...] | None:
         inv = self._inverse
         m = self.model
         if type(inv) is PIStepper:
