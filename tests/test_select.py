@@ -33,6 +33,13 @@ def test_ranges_follow_the_data_not_a_stage():
     # the same record at 10x the sample rate: the same ranges in seconds
     r10 = search_ranges(np.repeat(u, 10), DT / 10, n_fit=u.size * 10)
     assert r10.creep_taus[-1] == pytest.approx(r.creep_taus[-1], rel=1e-6)
+    # where two per decade stop more than a quarter decade short of half the fitting part, that
+    # half is the last lag (a creep of a few seconds is what such a record identifies)
+    for n_fit in (2500, 5000, 6000, 8000):
+        taus = search_ranges(u, DT, n_fit=n_fit).creep_taus
+        half = 0.5 * n_fit * DT
+        assert taus[-1] <= half * (1 + 1e-9) and taus[-1] >= half / 10 ** 0.25
+        assert all(b / a == pytest.approx(np.sqrt(10)) for a, b in zip(taus[:-2], taus[1:-1]))
 
 
 def test_exact_model_is_found_and_refitted_on_everything():
