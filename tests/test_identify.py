@@ -238,9 +238,8 @@ def test_strided_regressors_are_the_full_ones_subsampled(static, stride):
 @pytest.mark.parametrize("static,size,shape", [("pi", 12, (0.0, 0.0)), ("preisach", 6, (0.0, 0.0)),
                                                ("bouc-wen", 1, (0.03, -0.01))])
 def test_a_refits_design_written_in_place_is_the_searchs_design(static, size, shape, stride):
-    """``prepare`` without a cache at stride 1 (a refit on all the data) writes the static part's
-    columns straight into the design; the design is bit for bit the one the search's cached path
-    builds and copies (identify/linear.py)."""
+    """``prepare`` without a cache (a refit on all the data) builds bit for bit the design the
+    search's cached path builds (identify/linear.py)."""
     from piezohyst.identify.linear import Structure, prepare
 
     rng = np.random.default_rng(3)

@@ -40,7 +40,7 @@ from ..models.asymmetric_pi import AsymmetricPI, OutputMap
 from ..models.bouc_wen_hysteresis import BoucWenHysteresis, max_unit_slope, unit_hysteresis
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
 from ..models.play import play_outputs_strided_into
-from ..models.preisach import Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs_into
+from ..models.preisach import Preisach, demagnetised_state, grid_thresholds, preisach_outputs_into
 from ..models.rate import RateDependent, first_order_lag, lag_factor
 from .lsq import bounded_lstsq_gram
 from .result import FitResult
@@ -148,14 +148,21 @@ def _fmt_s(t: float) -> str:
 class Prepared:
     """The regressors of one structure over a whole record (built once, fitted on any rows).
 
-    ``base`` holds, per sample, ``[static variables (p) | floor (1) | lags (m) | 1]``; every fit
-    of the structure is a linear change of variables of these columns (``fit_prepared``), so the
-    normal equations are kept per number of rows and a delay only removes the last rows' share.
+    The design holds, per sample, ``[static variables (p) | floor (1) | lags (m) | 1]``, kept as
+    two blocks: ``static``, the static part's columns, shared with every structure of the same
+    static part (the same array, not a copy: a 16-level Preisach grid's is 70 MB on a search's
+    rows), and ``extra``, this structure's own ``[floor | lags | 1]``. Every fit of the structure
+    is a linear change of variables of these columns (``fit_prepared``), so the normal equations
+    are kept per number of rows and a delay only removes the last rows' share. Every product is
+    the one the whole design gives, to the last bit (the Gram matrix is formed on the two blocks
+    side by side: a block-wise one would differ in its rounding, and with it a search's choice
+    where two candidates are within rounding of each other).
     """
 
     structure: Structure
     v: FloatArray
-    base: FloatArray  # (ceil(N / stride), p + 1 + m + 1): the record's rows 0, stride, 2 stride, ...
+    static: FloatArray  # (ceil(N / stride), p): the record's rows 0, stride, 2 stride, ...
+    extra: FloatArray  # (ceil(N / stride), m + 2): floor, lags, 1
     p: int
     m: int
     a_lag: FloatArray
@@ -163,13 +170,28 @@ class Prepared:
     stride: int = 1
     _gram: dict[int, FloatArray] = field(default_factory=dict, repr=False)
 
+    @property
+    def rows(self) -> int:
+        """Stored rows (every ``stride``-th sample of the record)."""
+        return int(self.static.shape[0])
+
+    @property
+    def base(self) -> FloatArray:
+        """The whole design ``[static | extra]``, assembled (a copy, to look at)."""
+        return self._rows(0, self.rows)
+
     def n_rows(self, rows: int) -> int:
         """Stored rows among the record's rows ``[0, rows)``."""
         return -(-rows // self.stride)
 
+    def _rows(self, start: int, stop: int) -> FloatArray:
+        """Rows ``start:stop`` of the whole design (a copy)."""
+        return np.hstack([self.static[start:stop], self.extra[start:stop]])
+
     def gram(self, rows: int) -> FloatArray:
-        """``B' B`` over the stored rows among the record's rows ``[0, rows)``, from the nearest
-        cached count (a shorter set of rows only removes the last rows' share)."""
+        """``B' B`` over the stored rows among the record's rows ``[0, rows)``, ``B = [static |
+        extra]``, from the nearest cached count (a shorter set of rows only removes the last rows'
+        share)."""
         k = self.n_rows(rows)
         g = self._gram.get(k)
         if g is not None:
@@ -178,14 +200,27 @@ class Prepared:
         if bigger:
             r0 = min(bigger)
             if r0 - k <= 0.2 * k:
-                tail = self.base[k:r0]
+                tail = self._rows(k, r0)
                 g = self._gram[r0] - tail.T @ tail
                 self._gram[k] = g
                 return g
-        b = self.base[:k]
+        b = self._rows(0, k)
         g = b.T @ b
         self._gram[k] = g
         return g
+
+    def tmatvec(self, k: int, y: FloatArray) -> FloatArray:
+        """``B[:k]' y[::stride]``."""
+        yc = np.ascontiguousarray(y, dtype=np.float64)
+        return np.concatenate([_tmatvec(self.static, k, yc, self.stride), _tmatvec(self.extra, k, yc, self.stride)])
+
+    def tmatmul(self, k: int, x: FloatArray) -> FloatArray:
+        """``B[:k]' x`` for a matrix ``x`` of ``k`` rows."""
+        return self._rows(0, k).T @ x
+
+    def matvec(self, start: int, stop: int, coef: FloatArray) -> FloatArray:
+        """``B[start:stop] coef``, each row summed in column order."""
+        return _matvec2(self.static, self.extra, start, stop, coef)
 
 
 def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray | None = None,
@@ -195,8 +230,8 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
     ``u_ref`` (default ``u``) is the part of the record the structure's data-derived settings
     (thresholds, grid) come from: the fitting rows, so nothing is read off held-out data.
     ``cache`` (a dict kept by the caller for one record) shares the blocks structures have in
-    common: the lagged input, the static part's columns, each lag's column. With ``stride > 1``
-    only every ``stride``-th row is kept (the states are still computed at every sample).
+    common: the lagged input, the static part's columns, each lag's column. With ``stride > 1`` only every ``stride``-th row is kept (the states are still
+    computed at every sample).
     """
     ref = u if u_ref is None else u_ref
     if st.rate_dependent and dt is None:
@@ -214,43 +249,26 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
     a_lag = np.exp(-float(dt or 0.0) / np.asarray(st.taus, dtype=np.float64)) if st.taus else np.zeros(0)
     m = a_lag.size
     rows = slice(None, None, stride)
-    if cache is None:
-        # a one-off design (a refit on all the data): the static part's columns are written
-        # straight into the design, not built beside it and copied (on a 10^6-sample record with
-        # a 16-level Preisach grid, 1.3 GB less at the peak)
-        p = _static_width(st)
-        base = np.empty((-(-u.size // stride), p + m + 2))
-        _, floor, info = _static_columns(v, v_ref, st, stride, out=base[:, :p])
+    if key_s in memo:
+        static_cols, floor, info = memo[key_s]
     else:
-        if key_s in memo:
-            static_cols, floor, info = memo[key_s]
-        else:
-            static_cols, floor, info = _static_columns(v, v_ref, st, stride)
-            memo[key_s] = (static_cols, floor, info)
-        p = static_cols.shape[1]
-        base = np.empty((-(-u.size // stride), p + m + 2))
-        base[:, :p] = static_cols
-    base[:, p] = floor
+        static_cols, floor, info = _static_columns(v, v_ref, st, stride)
+        memo[key_s] = (static_cols, floor, info)
+    extra = np.empty((static_cols.shape[0], m + 2))
+    extra[:, 0] = floor
     for i, al in enumerate(a_lag):
         key_l = ("lag", st.input_tau, float(al), ref.size, stride)
         if key_l not in memo:
             memo[key_l] = np.ascontiguousarray(first_order_lag(v, float(al))[rows])  # not a view of all N
-        base[:, p + 1 + i] = memo[key_l]
-    base[:, -1] = 1.0
-    return Prepared(st, v, base, p, m, a_lag, info, stride)
+        extra[:, 1 + i] = memo[key_l]
+    extra[:, -1] = 1.0
+    return Prepared(st, v, static_cols, extra, static_cols.shape[1], m, a_lag, info, stride)
 
 
-def _static_width(st: Structure) -> int:
-    """How many free columns the static part of ``st`` has (:func:`_static_columns`)."""
-    return {"pi": st.size, "bouc-wen": 1}.get(st.static) or grid_size(st.size)
-
-
-def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int = 1, *,
-                    out: FloatArray | None = None) -> tuple[FloatArray, FloatArray, dict[str, Any]]:
+def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure,
+                    stride: int = 1) -> tuple[FloatArray, FloatArray, dict[str, Any]]:
     """The static part's free columns, its floor column and what decoding needs, at the samples
-    ``0, stride, 2 stride, ...`` (the operators' states are computed at every sample). With
-    ``out`` (:func:`_static_width` columns, one row per kept sample, e.g. a view into the
-    design) the columns are written there, the same numbers, and ``out`` is returned as them."""
+    ``0, stride, 2 stride, ...`` (the operators' states are computed at every sample)."""
     info: dict[str, Any] = {}
     rows = slice(None, None, stride)
     if st.static == "pi":
@@ -260,7 +278,7 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int
             half_span = 0.5 * float(np.ptp(v_ref))
             r = np.arange(st.size, dtype=np.float64) / st.size * half_span
         n_rows = -(-v.size // stride)
-        zd = np.empty((n_rows, r.size)) if out is None else out
+        zd = np.empty((n_rows, r.size))
         play_outputs_strided_into(np.ascontiguousarray(v), r, np.zeros(r.size), stride, zd)
         for j in range(r.size - 1):  # y = sum_j S_j (z_j - z_{j+1}): the partial sums' columns, in place
             zd[:, j] -= zd[:, j + 1]
@@ -274,9 +292,6 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int
         mslope = max_unit_slope(beta, gamma, v_range)
         vs = v[rows]
         static_cols = (mslope * vs - h1)[:, None]  # coefficient alpha d1 >= 0; slope floor on v
-        if out is not None:
-            out[:, 0] = static_cols[:, 0]
-            static_cols = out
         floor = np.array(vs, dtype=np.float64)
         info["max_unit_slope"] = mslope
         info["v_range"] = v_range
@@ -286,7 +301,7 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int
         lo, hi = lo - pad, hi + pad
         a, bb, d = grid_thresholds(lo, hi, st.size)
         z0 = demagnetised_state(a, bb, d, 0.0)
-        static_cols = np.empty((-(-v.size // stride), a.size)) if out is None else out
+        static_cols = np.empty((-(-v.size // stride), a.size))
         preisach_outputs_into(np.ascontiguousarray(v), a, bb, 1.0 / d, z0, static_cols, stride)
         floor = np.array(v[rows], dtype=np.float64)
         info["grid"] = (lo, hi)
@@ -357,14 +372,17 @@ def _tmatvec(b: FloatArray, rows: int, y: FloatArray, stride: int) -> FloatArray
 
 
 @njit
-def _matvec(b: FloatArray, start: int, stop: int, c: FloatArray) -> FloatArray:  # pragma: no cover - compiled
-    """``b[start:stop] @ c``."""
+def _matvec2(a: FloatArray, b: FloatArray, start: int, stop: int, c: FloatArray) -> FloatArray:  # pragma: no cover
+    """``[a | b][start:stop] @ c``, each row summed in column order (a's columns, then b's)."""
     out = np.empty(stop - start)
+    p = a.shape[1]
     q = b.shape[1]
     for k in range(start, stop):
         acc = 0.0
+        for j in range(p):
+            acc += a[k, j] * c[j]
         for j in range(q):
-            acc += b[k, j] * c[j]
+            acc += b[k, j] * c[p + j]
         out[k - start] = acc
     return out
 
@@ -417,21 +435,20 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
     stride = pre.stride
     k_rows = pre.n_rows(rows)
     gb = pre.gram(rows)
-    bty = _tmatvec(pre.base, k_rows, np.ascontiguousarray(yy), stride)
+    bty = pre.tmatvec(k_rows, yy)
     # rhs = y - base @ shift; A = base @ T (+ the map's columns)
     gram = t.T @ gb @ t
     atb = t.T @ (bty - gb @ shift)
     knots = centre = None
     if st.map_knots:
         ys = yy[::stride]
-        bmat = pre.base[:k_rows]
         knots, centre = map_knots_for(ys, st.map_knots)
         mc, const, hi = _map_columns(ys, knots, centre)
         k = mc.shape[1]
         # A = [B T | mc], rhs = ys - B shift - const. Every product goes through the stored
         # columns B (q of them) rather than B T (as many as the design's variables): B' [mc const]
         # and mc' [mc ys const] are the only products over the rows, the rest is q x q algebra.
-        bc = bmat.T @ np.column_stack([mc, const])
+        bc = pre.tmatmul(k_rows, np.column_stack([mc, const]))
         mm = mc.T @ np.column_stack([mc, ys, const])
         g2 = np.empty((gram.shape[0] + k, gram.shape[0] + k))
         g2[:-k, :-k] = gram
@@ -476,8 +493,8 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
         if dt is None:
             raise ValueError("a rate-dependent structure needs dt")
         model = RateDependent(static, np.asarray(st.taus, dtype=np.float64), c, dt, input_tau=st.input_tau)
-    start, stop = predict if predict is not None else (0, pre.base.shape[0] * stride)
-    inner_pred = _matvec(pre.base, pre.n_rows(start), pre.n_rows(stop), coef)
+    start, stop = predict if predict is not None else (0, pre.rows * stride)
+    inner_pred = pre.matvec(pre.n_rows(start), pre.n_rows(stop), coef)
     pred = inner_pred
     if st.map_knots:
         omap = _decode_map(tau_map, knots, centre)  # type: ignore[arg-type]
