@@ -60,24 +60,36 @@ def _lag_kernel(x: FloatArray, a: float) -> FloatArray:  # pragma: no cover - co
 
 
 @njit
+def _lags_known(a: FloatArray, c: FloatArray, s: FloatArray) -> float:  # pragma: no cover - compiled
+    """``sum_i c_i a_i s_i``: what the output lags add from the past (module docstring)."""
+    known = 0.0
+    for i in range(a.shape[0]):
+        known += c[i] * a[i] * s[i]
+    return known
+
+
+@njit
+def _lags_advance(v: float, a: FloatArray, s: FloatArray, b: float, v_prev: FloatArray) -> float:  # pragma: no cover
+    """The lags' states after the static inverse gave ``v``, and the command: the exact inverse
+    of the input lag, ``u = (v - b v_prev) / (1 - b)``."""
+    for i in range(a.shape[0]):
+        s[i] = (1.0 - a[i]) * v + a[i] * s[i]
+    u = v if b == 0.0 else (v - b * v_prev[0]) / (1.0 - b)
+    v_prev[0] = v
+    return u
+
+
+@njit
 def _rate_pi_inverse_step(x_d: float, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float,
                           a: FloatArray, c: FloatArray, s: FloatArray, b: float, v_prev: FloatArray) -> float:  # pragma: no cover
     """One sample of :class:`RateCompensator` with a P-I static part (module docstring): solve
     ``S_kappa[v] = x_d - sum_i c_i a_i s_i`` with the inverse P-I model (eqs. 12-15, ``pi_step``),
     update the lags, invert the input lag. NaN, with no state changed, when the inverse's input
     is not finite (the caller raises as the P-I stepper would)."""
-    known = 0.0
-    for i in range(a.shape[0]):
-        known += c[i] * a[i] * s[i]
-    x = x_d - known
+    x = x_d - _lags_known(a, c, s)
     if not math.isfinite(x):
         return math.nan
-    v = pi_step(x, r, w, z, in_off, out_off)
-    for i in range(a.shape[0]):
-        s[i] = (1.0 - a[i]) * v + a[i] * s[i]
-    u = v if b == 0.0 else (v - b * v_prev[0]) / (1.0 - b)  # exact inverse of the input lag
-    v_prev[0] = v
-    return u
+    return _lags_advance(pi_step(x, r, w, z, in_off, out_off), a, s, b, v_prev)
 
 
 @njit
@@ -111,19 +123,12 @@ def _rate_preisach_inverse_step(x_d: float, alpha: FloatArray, beta: FloatArray,
     solve of :func:`~piezohyst.models.preisach.preisach_solve` from the last solution
     ``v_last`` (:class:`~piezohyst.models.preisach.PreisachInverse`'s), the lags, the input lag's
     inverse. NaN, with no state changed, when the solve's target is not finite."""
-    known = 0.0
-    for i in range(a.shape[0]):
-        known += c[i] * a[i] * s[i]
-    x = x_d - known
+    x = x_d - _lags_known(a, c, s)
     if not math.isfinite(x):
         return math.nan
     v = preisach_solve(x, v_last[0], alpha, beta, inv_delta, z, mu, slope, offset, steps)
     v_last[0] = v
-    for i in range(a.shape[0]):
-        s[i] = (1.0 - a[i]) * v + a[i] * s[i]
-    u = v if b == 0.0 else (v - b * v_prev[0]) / (1.0 - b)
-    v_prev[0] = v
-    return u
+    return _lags_advance(v, a, s, b, v_prev)
 
 
 @njit
