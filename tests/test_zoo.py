@@ -107,6 +107,8 @@ def test_feedback_and_learning_within_1_percent(commissioned, freq, request):
     period = int(round(1.0 / (freq * stage.dt)))
     out = ctl.track(ref, period=period)
     assert out.info["feedback"] and out.info["learning"] and ctl.tuning.ki > 0
+    if ctl.fit.info.get("floor_at_margin"):  # flat after reversals: the learning band stays where it starts
+        assert out.info["learning_cutoff_hz"] == max(50.0, 15.0 * freq)
     last = slice((FBL_CYCLES - FBL_READ) * period, FBL_CYCLES * period)
     e_max = 100.0 * float(np.abs(out.error[last]).max()) / float(np.ptp(ref))
     cmd = out.command[period:]
