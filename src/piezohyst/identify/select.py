@@ -699,11 +699,31 @@ def _as_validation(v: Any, i: int) -> tuple[FloatArray, FloatArray, int]:
 CHATTER_RETRIES = 8
 
 
+#: A command's turn counts (:func:`_chatters`) when it goes back by more than this fraction of its
+#: range: a smaller excursion (a wiggle of 10^-7 to 10^-5 of the range where a Preisach inverse's
+#: kinks meet the lags' recursion) changes no displacement a stage can show, while chatter swings
+#: the command by a good part of its range (the case that made this check: -40 to +110 V at the
+#: Nyquist frequency after every reversal).
+CHATTER_TURN = 1e-3
+
+
+def _turns(x: FloatArray, tol: float) -> int:
+    """How often ``x`` changes direction by more than ``tol``: the reversals of a play operator of
+    threshold ``tol / 2`` driven by it (eqs. 1-2), which ignores excursions smaller than ``tol``."""
+    from ..models.play import play_operator
+
+    p = play_operator(x, 0.5 * tol, float(x[0]))
+    d = np.diff(p)
+    d = d[d != 0.0]
+    return int(np.count_nonzero(np.diff(np.sign(d)) != 0))
+
+
 def _chatters(model: Any, dt: float, y: FloatArray, ranges: SearchRanges) -> bool:
     """Whether the model's compensator chatters on smooth references: sinusoids over the middle
-    70 % of the record's output at the low and high ends of its excitation band, the command's
-    increments changing sign more often than the reference's (beyond one spare flip), after the
-    first cycle. A hysteresis inverse turns where the reference turns and nowhere else."""
+    70 % of the record's output at the low and high ends of its excitation band, the command
+    turning more often than the reference (beyond one spare turn), after the first cycle; a turn
+    of the command counts when it goes back by more than :data:`CHATTER_TURN` of its range. A
+    hysteresis inverse turns where the reference turns and nowhere else."""
     try:
         comp = model.compensator(dt)
     except (ValueError, TypeError, AttributeError):
@@ -720,9 +740,8 @@ def _chatters(model: Any, dt: float, y: FloatArray, ranges: SearchRanges) -> boo
         cmd = np.asarray(comp.command(x), dtype=np.float64)  # from the initial state
         if not np.all(np.isfinite(cmd)):
             return True
-        du, dx = np.diff(cmd[per:]), np.diff(x[per:])
-        big = np.abs(du) > 1e-9 * max(float(np.ptp(cmd)), 1e-300)
-        flips_u = int(np.count_nonzero(np.diff(np.sign(du[big])) != 0))
+        dx = np.diff(x[per:])
+        flips_u = _turns(cmd[per:], CHATTER_TURN * max(float(np.ptp(cmd)), 1e-300))
         flips_x = int(np.count_nonzero(np.diff(np.sign(dx[np.abs(dx) > 0])) != 0))
         if flips_u > flips_x + 1:
             return True
