@@ -427,9 +427,8 @@ def tune_integral_safely(
        and grows by more than :data:`RIPPLE_GROWTH` from one probe to the next one the same way:
        an oscillation building under an answer that looks damped (a low, lightly damped
        resonance the model lacks); the stage then rests :data:`RING_DOWN_S` before the next
-       trial. The command then ramps back
-       to rest. The loop is never taken near instability, and the commands stay within a few
-       probe sizes of the hold.
+       trial. The command then ramps back to rest. The loop is never taken near instability, and
+       the commands stay within a few probe sizes of the hold (and the settled offset's command).
     3. ``ki`` = the largest well-damped gain / (``back_off`` * the large-signal slope ratio). The
        experiments and the model's margins hold where the loop was linearised; a tracking run
        sweeps the stage along branches that can be steeper (on a Preisach-like stage 2x and more

@@ -174,13 +174,12 @@ class _Scorer:
     def _prepared(self, key: Structure) -> Prepared:
         """The design of ``key`` (a structure without its delay: every delay fits the same rows).
 
-        Only the last :data:`PREPARED_KEPT` designs used are kept: each is a matrix of the
-        search's rows by the structure's columns (12 MB for a P-I model with lags on 50,000 rows,
-        70 MB for a 16-level Preisach grid), and a search tries dozens of structures, mostly one
-        after the other (a delay search, then the next input lag). Keeping every one cost 1 GB on
-        a 10^5-sample record, and the time to fault that much fresh memory in. An evicted design's
-        Gram matrices are kept: built again, it computes exactly what it would have (its
-        matrices are recomputed bit for bit from the cached blocks, and its Gram cache is as it was).
+        Only the last :data:`PREPARED_KEPT` designs used are kept (their own columns and the
+        static block they hold on to, :class:`_Blocks`): a search tries dozens of structures,
+        mostly one after the other (a delay search, then the next input lag), and keeping every
+        one held 1.3 GB on a 10^5-sample record. An evicted design's Gram matrices are kept: built
+        again, it computes exactly what it would have (its columns are recomputed bit for bit, and
+        its Gram cache is as it was).
         """
         pre = self._prep.get(key)
         if pre is not None:
@@ -225,7 +224,7 @@ class _Scorer:
 class _Blocks(OrderedDict):  # type: ignore[type-arg]
     """The regressor blocks structures share (:func:`~piezohyst.identify.linear.prepare`'s
     ``cache``), keeping only the last :data:`STATIC_KEPT` static parts used: each is the
-    search's rows by the static part's columns (6 MB for 20 P-I operators, 70 MB for a 16-level
+    search's rows by the static part's columns (8 MB for 20 P-I operators, 70 MB for a 16-level
     Preisach grid), a search makes dozens, and one dropped is computed again bit for bit."""
 
     def __getitem__(self, key: Any) -> Any:
