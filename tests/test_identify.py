@@ -238,8 +238,10 @@ def test_strided_regressors_are_the_full_ones_subsampled(static, stride):
 @pytest.mark.parametrize("static,size,shape", [("pi", 12, (0.0, 0.0)), ("preisach", 6, (0.0, 0.0)),
                                                ("bouc-wen", 1, (0.03, -0.01))])
 def test_a_refits_design_written_in_place_is_the_searchs_design(static, size, shape, stride):
-    """``prepare`` without a cache (a refit on all the data) builds bit for bit the design the
-    search's cached path builds (identify/linear.py)."""
+    """``prepare`` without a cache (a refit on all the data) writes the static part's columns
+    straight into one design array (no second copy of a design that can be gigabytes); the design
+    is bit for bit the one the search's cached path builds from its shared blocks
+    (identify/linear.py)."""
     from piezohyst.identify.linear import Structure, prepare
 
     rng = np.random.default_rng(3)
@@ -249,6 +251,8 @@ def test_a_refits_design_written_in_place_is_the_searchs_design(static, size, sh
     cached = prepare(u, 1e-4, st, u_ref=u[:4000], cache={}, stride=stride)
     assert direct.base.shape == cached.base.shape
     assert np.array_equal(direct.base, cached.base)
+    assert direct.whole is not None and np.shares_memory(direct.static, direct.whole)
+    assert np.shares_memory(direct.extra, direct.whole) and np.shares_memory(direct.base, direct.whole)
 
 
 def test_a_record_beyond_the_row_budget_is_fitted_on_every_kth_row():
