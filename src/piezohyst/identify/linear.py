@@ -180,7 +180,7 @@ class Prepared:
 
     @property
     def base(self) -> FloatArray:
-        """The whole design ``[static | extra]``, assembled (a copy, to look at)."""
+        """The whole design ``[static | extra]``, to look at (a copy, unless the design is one array)."""
         return self._rows(0, self.rows)
 
     def n_rows(self, rows: int) -> int:

@@ -49,6 +49,7 @@ import numpy as np
 from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
+from ..models.play import play_operator
 from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals, unpack_data
 
@@ -709,8 +710,6 @@ CHATTER_TURN = 1e-3
 def _turns(x: FloatArray, tol: float) -> int:
     """How often ``x`` changes direction by more than ``tol``: the reversals of a play operator of
     threshold ``tol / 2`` driven by it (eqs. 1-2), which ignores excursions smaller than ``tol``."""
-    from ..models.play import play_operator
-
     p = play_operator(x, 0.5 * tol, float(x[0]))
     d = np.diff(p)
     d = d[d != 0.0]
