@@ -135,3 +135,22 @@ def test_the_search_keeps_few_designs_and_chooses_exactly_as_with_all(monkeypatc
     assert len(few[1]) > 50
     assert few[0] == every[0] and few[1] == every[1]
     assert repr(few[2]) == repr(every[2])
+
+
+def test_designs_of_one_static_block_share_its_gram_and_agree_with_the_whole_design():
+    # the Gram matrix is formed block by block, S'S once per static block and number of rows
+    # (most of the work on a wide Preisach grid), E'[S | E] per design: the same matrix as the
+    # whole design's B'B, to rounding, for any number of rows (also those derived from a longer one)
+    from piezohyst.identify.linear import Structure, prepare
+
+    u = record(freq=2.0)
+    cache: dict = {}
+    a = prepare(u, DT, Structure(static="preisach", size=8, taus=(0.01, 0.3)), cache=cache)
+    b = prepare(u, DT, Structure(static="preisach", size=8, taus=(0.05,)), cache=cache)
+    assert a.static is b.static and a.static_grams is b.static_grams
+    for pre in (a, b):
+        for rows in (u.size, u.size - 7, int(0.9 * u.size), u.size // 3):
+            whole = np.hstack([pre.static, pre.extra])[: pre.n_rows(rows)]
+            want = whole.T @ whole
+            np.testing.assert_allclose(pre.gram(rows), want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+    assert sorted(a.static_grams) == sorted({a.n_rows(r) for r in (u.size, u.size - 7, int(0.9 * u.size), u.size // 3)})

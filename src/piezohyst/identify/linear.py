@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -172,6 +173,11 @@ class Prepared:
     #: design, a refit on all the data: its products then need no copy of it)
     whole: FloatArray | None = field(default=None, repr=False)
     _gram: dict[int, FloatArray] = field(default_factory=dict, repr=False)
+    #: ``E' [S | E]`` per number of rows (this design's own rows of its Gram matrix)
+    _extra: dict[int, FloatArray] = field(default_factory=dict, repr=False)
+    #: ``S' S`` of the static block per number of rows, shared by every design of that block
+    #: (the same dict, kept by the caller's cache): most of a Gram matrix's work on a wide grid
+    static_grams: dict[int, FloatArray] | None = field(default=None, repr=False)
 
     @property
     def rows(self) -> int:
@@ -195,24 +201,35 @@ class Prepared:
 
     def gram(self, rows: int) -> FloatArray:
         """``B' B`` over the stored rows among the record's rows ``[0, rows)``, ``B = [static |
-        extra]``, from the nearest cached count (a shorter set of rows only removes the last rows'
-        share)."""
+        extra]``: block by block, ``S' S`` (shared with the static block's other designs),
+        ``E' S`` and ``E' E``, each from the nearest cached count of rows (a shorter set of rows
+        only removes the last rows' share)."""
         k = self.n_rows(rows)
         g = self._gram.get(k)
         if g is not None:
             return g
-        bigger = [r for r in self._gram if r > k]
-        if bigger:
-            r0 = min(bigger)
-            if r0 - k <= 0.2 * k:
-                tail = self._rows(k, r0)
-                g = self._gram[r0] - tail.T @ tail
-                self._gram[k] = g
-                return g
-        b = self._rows(0, k)
-        g = b.T @ b
+        if self.static_grams is None:  # a one-off design: one array, one product
+            g = _cached_product(self._gram, k, lambda a, b: _self_product(self._rows(a, b)))
+            return g
+        p = self.p
+        ss = _cached_product(self.static_grams, k, lambda a, b: _self_product(self.static[a:b]))
+
+        def extra_rows(a: int, b: int) -> FloatArray:
+            e = self.extra[a:b]
+            return np.hstack([e.T @ self.static[a:b], _self_product(e)])
+
+        ext = _cached_product(self._extra, k, extra_rows)
+        g = np.empty((self.q, self.q))
+        g[:p, :p] = ss
+        g[p:, :] = ext
+        g[:p, p:] = ext[:, :p].T
         self._gram[k] = g
         return g
+
+    @property
+    def q(self) -> int:
+        """Columns of the design: ``p`` static, the floor, ``m`` lags and the constant."""
+        return self.p + self.m + 2
 
     def tmatvec(self, k: int, y: FloatArray) -> FloatArray:
         """``B[:k]' y[::stride]``."""
@@ -230,6 +247,29 @@ class Prepared:
         if self.whole is not None:
             return _matvec2(self.whole, np.empty((self.rows, 0)), start, stop, coef)  # type: ignore[no-any-return]
         return _matvec2(self.static, self.extra, start, stop, coef)  # type: ignore[no-any-return]
+
+
+def _self_product(b: FloatArray) -> FloatArray:
+    """``b' b`` (numpy forms it with one symmetric rank-k update)."""
+    return b.T @ b  # type: ignore[no-any-return]
+
+
+def _cached_product(cache: dict[int, FloatArray], k: int, rows_product: Callable[[int, int], FloatArray]) -> FloatArray:
+    """A product over rows ``[0, k)`` (``rows_product(a, b)`` over rows ``[a, b)``) from ``cache``:
+    as it is, or a cached one over up to 20 % more rows less those rows' share, or formed anew."""
+    g = cache.get(k)
+    if g is not None:
+        return g
+    bigger = [r for r in cache if r > k]
+    if bigger:
+        r0 = min(bigger)
+        if r0 - k <= 0.2 * k:
+            g = cache[r0] - rows_product(k, r0)
+            cache[k] = g
+            return g
+    g = rows_product(0, k)
+    cache[k] = g
+    return g
 
 
 def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray | None = None,
@@ -273,6 +313,7 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
         else:
             static_cols, floor, info = _static_columns(v, v_ref, st, stride)
             memo[key_s] = (static_cols, floor, info)
+        static_grams = memo.setdefault(("static-gram", *key_s[1:]), {})
         extra = np.empty((static_cols.shape[0], m + 2))
     extra[:, 0] = floor
     for i, al in enumerate(a_lag):
@@ -281,7 +322,8 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
             memo[key_l] = np.ascontiguousarray(first_order_lag(v, float(al))[rows])  # not a view of all N
         extra[:, 1 + i] = memo[key_l]
     extra[:, -1] = 1.0
-    return Prepared(st, v, static_cols, extra, static_cols.shape[1], m, a_lag, info, stride, whole)
+    return Prepared(st, v, static_cols, extra, static_cols.shape[1], m, a_lag, info, stride, whole,
+                    static_grams=None if cache is None else static_grams)
 
 
 def _static_width(st: Structure) -> int:

@@ -155,7 +155,7 @@ class _Scorer:
         #: the prepared structures (design matrices), the most recently used last; at most
         #: PREPARED_KEPT of them, an evicted one's Gram matrices kept in _grams
         self._prep: OrderedDict[Any, Prepared] = OrderedDict()
-        self._grams: dict[Any, dict[int, FloatArray]] = {}
+        self._grams: dict[Any, tuple[dict[int, FloatArray], dict[int, FloatArray]]] = {}
         self._done: dict[Structure, _Candidate] = {}
         self._blocks = _Blocks()
 
@@ -187,11 +187,11 @@ class _Scorer:
             self._prep.move_to_end(key)
             return pre
         pre = prepare(self.u, self.dt, key, u_ref=self.u[: self.n_fit], cache=self._blocks, stride=self.stride)
-        pre._gram = self._grams.pop(key, pre._gram)
+        pre._gram, pre._extra = self._grams.pop(key, (pre._gram, pre._extra))
         self._prep[key] = pre
         if len(self._prep) > PREPARED_KEPT:
             old_key, old = self._prep.popitem(last=False)
-            self._grams[old_key] = old._gram
+            self._grams[old_key] = (old._gram, old._extra)
         return pre
 
     def linear(self, st: Structure) -> _Candidate:
