@@ -37,7 +37,22 @@ ablation and in ``tests/test_commission.py``):
 3. **Feedforward**: the model's compensator (its exact or numerical inverse), fed the
    reference ``delay`` samples ahead (the reference is known in advance; this cancels the
    sensor's delay). Every run starts with a lead-in: the desired displacement ramps from rest to
-   the reference's first value slowly enough that the commands stay inside the step limit.
+   the reference's first value slowly enough that the commands stay inside the step limit. With
+   ``conditioning=True`` (``commission(...)``, or per run ``track(...)``) a conditioning sweep
+   comes first (:meth:`CommissionedController.conditioning_command`: from rest to the top of the
+   range and the bottom, then up to the first target, at least 0.25 s per leg): it wipes out
+   the stage's memory of whatever it did before, and the feedforward follows it through the
+   model, so stage and model start the run in the same state. Without it a run starts from the
+   plant's state after ``reset()`` and the model's initial one, which agree only where reset
+   restores the state the identification started from; a real stage's "reset" only returns the
+   command to rest, and on a bipolar stage resting mid-range its hysteresis keeps the memory of
+   the last runs. It is off by default: it drives the stage over its full stroke before every
+   run, and the sweep excites creep that a short run then carries (measured on the zoo, the
+   feedforward alone at 1/3/5 Hz, % of span: the dead-zone stage 1.61/1.33/1.48 -> 0.87/0.56/
+   0.77, asymmetric Bouc-Wen 0.75/0.87/0.82 -> 0.73/0.72/0.76, falling after reversal
+   0.87/1.00/1.22 -> 0.86/0.92/1.05, but the Duhem stage, with a 0.5 s creep, 1.26/1.05/1.10 ->
+   1.12/1.25/1.47; the others within 0.03; a bipolar relay stage that keeps its memory: the same
+   run after any past, to the bit).
 4. **Feedback** (plants with a per-sample loop only): integral action added to the *command*,
    scaled by the model's mean inverse slope (V per µm), with anti-windup on the range. Its gain
    comes from the identified model and the measured delay (a phase-margin rule on the model's
@@ -268,6 +283,10 @@ class CommissionedController:
     info: dict[str, Any] = field(default_factory=dict)
     limits: CommandLimits | None = None
     max_plays: int = 8
+    #: start every run with the conditioning sweep (module docstring, step 3)
+    conditioning: bool = False
+    #: the conditioning sweep's legs last at least this long, s (about a 2 Hz half-cycle each)
+    CONDITIONING_LEG_S = 0.25
 
     @property
     def model(self) -> Any:
@@ -334,8 +353,35 @@ class CommissionedController:
         dt = self.plant.dt if self.model.dynamic else None
         return float(self.model.predict(np.full(2, limits.rest), dt)[-1])
 
+    def conditioning_command(self) -> FloatArray:
+        """The conditioning sweep's command (V): from rest to the top of the range and down to the
+        bottom, raised-cosine legs of at least :attr:`CONDITIONING_LEG_S` each, inside the step
+        limit (module docstring, step 3). A run then rises from the bottom to its first target
+        as slowly (a quick rise would ring a lightly damped stage into the run's first cycle)."""
+        limits = self._limits()
+        dt = self.plant.dt
+        out, last = [np.array([limits.rest])], limits.rest
+        for end in (limits.high, limits.low):
+            if end == last:
+                continue
+            n = max(limits.ramp_length(end - last, dt), int(math.ceil(self.CONDITIONING_LEG_S / dt)))
+            k = np.arange(1, n + 1) / n
+            out.append(last + (end - last) * 0.5 * (1.0 - np.cos(np.pi * k)))
+            last = end
+        return np.concatenate(out)
+
+    def _lead_in(self, ff: Compensator, limits: CommandLimits, y_to: float, conditioning: bool) -> tuple[FloatArray, FloatArray]:
+        """Desired µm and commands from rest to ``y_to``: through the conditioning sweep (the
+        model's output along it, from its initial state) when ``conditioning``, else straight."""
+        dt = self.plant.dt
+        if not conditioning:
+            return lead_in(ff, self._rest_output(limits), y_to, limits, dt)
+        sweep = self.model.predict(self.conditioning_command(), dt if self.model.dynamic else None)
+        return lead_in(ff, float(sweep[-1]), y_to, limits, dt, before=sweep, min_seconds=self.CONDITIONING_LEG_S)
+
     def track(self, reference: Any, *, feedback: bool | None = None, learning: bool = True,
-              period: int | None = None, label: str = "", max_plays: int | None = None) -> TrackingResult:
+              period: int | None = None, label: str = "", max_plays: int | None = None,
+              conditioning: bool | None = None) -> TrackingResult:
         """Follow ``reference`` (µm, one sample per ``plant.dt``).
 
         ``feedback`` switches the integral feedback: None (default) uses it where the plant has a
@@ -344,15 +390,19 @@ class CommissionedController:
         the reference repeats (``period`` samples, estimated when omitted), cycle by cycle; on a
         buffered plant the whole table is played again, corrected, up to ``max_plays`` times, and
         the best play is returned (``info["play_rms_um"]`` lists every play).
+        ``conditioning`` (default: the controller's :attr:`conditioning`, off) starts the run with
+        the conditioning sweep over the whole range (module docstring, step 3).
         """
         r = as_signal("reference", reference, min_length=2)
+        cond = self.conditioning if conditioning is None else bool(conditioning)
         if self.mode == "buffered":
             if feedback:
                 raise ValueError(NO_LOOP.replace("no feedback: ", "cannot use feedback: "))
             return self._track_buffered(r, learning=learning, period=period, label=label,
-                                        max_plays=self.max_plays if max_plays is None else int(max_plays))
+                                        max_plays=self.max_plays if max_plays is None else int(max_plays),
+                                        conditioning=cond)
         return self._track_step(r, feedback=True if feedback is None else bool(feedback), learning=learning,
-                                period=period, label=label)
+                                period=period, label=label, conditioning=cond)
 
     def _cutoff(self, per: int | None, dt: float) -> float:
         return self.ilc_cutoff_hz or (max(50.0, 15.0 / (per * dt)) if per else 50.0)
@@ -368,20 +418,20 @@ class CommissionedController:
         return self.MAX_CUTOFF_FRACTION / dt
 
     def _track_step(self, r: FloatArray, *, feedback: bool, learning: bool, period: int | None,
-                    label: str) -> TrackingResult:
+                    label: str, conditioning: bool = False) -> TrackingResult:
         # the loop compiled where every part has a kernel (the VirtualRig, a rate-dependent P-I
         # inverse, a PID); it gives up at the first sample where anything unusual happens, and the
         # run is then made again from the start in Python, which handles it as it always has
         res = self._track_step_run(r, feedback=feedback, learning=learning, period=period, label=label,
-                                   compiled=True)
+                                   compiled=True, conditioning=conditioning)
         if res is None:
             res = self._track_step_run(r, feedback=feedback, learning=learning, period=period, label=label,
-                                       compiled=False)
+                                       compiled=False, conditioning=conditioning)
         assert res is not None  # the Python loop always ends with a result (or raises)
         return res
 
     def _track_step_run(self, r: FloatArray, *, feedback: bool, learning: bool, period: int | None,
-                        label: str, compiled: bool) -> TrackingResult | None:
+                        label: str, compiled: bool, conditioning: bool = False) -> TrackingResult | None:
         plant = self.plant
         dt = plant.dt
         limits = self._limits()
@@ -410,7 +460,7 @@ class CommissionedController:
                           limit=10 * span + 10, dt=dt, describe=lambda: f"controller {self.describe()}")
         guard.reset()
         # lead-in: from rest to the first target, slowly enough for the step limit
-        desired, cmd = lead_in(ff, self._rest_output(limits), r[min(d, n - 1)], limits, dt)
+        desired, cmd = self._lead_in(ff, limits, float(r[min(d, n - 1)]), conditioning)
         guard.ramp_to(float(cmd[0]))
         ff.reset()
         y_prev = 0.0
@@ -517,7 +567,7 @@ class CommissionedController:
                                     "safety": guard.counts()})
 
     def _track_buffered(self, r: FloatArray, *, learning: bool, period: int | None, label: str,
-                        max_plays: int) -> TrackingResult:
+                        max_plays: int, conditioning: bool = False) -> TrackingResult:
         if max_plays < 1:
             raise ValueError(f"max_plays must be >= 1, got {max_plays}")
         from .signals import cycles_after_first
@@ -533,7 +583,6 @@ class CommissionedController:
         d = self.delay
         idx = np.minimum(np.arange(n) + d, n - 1)
         ff = self.feedforward()
-        y_rest = self._rest_output(limits)
         cutoff = self._cutoff(per, dt)
         corr = np.zeros(n)
         corr_period = np.zeros(per) if folded else None  # type: ignore[arg-type]
@@ -541,7 +590,7 @@ class CommissionedController:
         best: tuple[float, FloatArray, FloatArray] | None = None
         for _ in range(max_plays if learning else 1):
             targets = r[idx] + corr[idx]
-            desired, _c = lead_in(ff, y_rest, float(targets[0]), limits, dt)
+            desired, _c = self._lead_in(ff, limits, float(targets[0]), conditioning)
             cmd = ff.command(np.concatenate([desired[:-1], targets]))
             lead = desired.size - 1
             pre = limits.ramp(guard.last, min(max(float(cmd[0]), limits.low), limits.high), dt)
@@ -644,7 +693,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
                excitation: Any = None, tune: bool = True, learning_gain: float = 0.5,
                max_step_fraction: float = MAX_STEP_FRACTION, u_rest: float | None = None,
                tuning: SafeTuningOptions | None = None, kinds: Sequence[str] = COMMISSION_KINDS,
-               max_plays: int = 8, progress: Callable[[str], None] | None = None) -> CommissionedController:
+               max_plays: int = 8, progress: Callable[[str], None] | None = None,
+               conditioning: bool = False) -> CommissionedController:
     """Identify ``plant`` and build its controller, safely (module docstring).
 
     Parameters
@@ -681,6 +731,11 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     progress : callable, optional
         Called with a short description before each stage (and passed on to
         :func:`~piezohyst.identify.fit_model`); a :class:`~piezohyst.Progress` shows them.
+    conditioning : bool
+        Start every tracking run with the conditioning sweep over the whole range (module
+        docstring, step 3; the controller's ``conditioning``, also per run in ``track``): for a
+        stage whose hysteresis keeps the memory of earlier runs. Off by default (the stage
+        travels its full stroke before each run).
 
     Returns
     -------
@@ -728,7 +783,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     else:
         fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, progress=progress)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain,
-                                 limits=limits, max_plays=max_plays)
+                                 limits=limits, max_plays=max_plays, conditioning=bool(conditioning))
     tune_counts = None
     if mode == "buffered":
         ctl.info["held_command"] = guard.last

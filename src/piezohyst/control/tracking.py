@@ -284,24 +284,30 @@ def _describe(feedforward: Any, feedback: Any, feedback_at: str) -> str:
 
 
 def lead_in(feedforward: Any, y_from: float, y_to: float, limits: Any, dt: float, *,
-            share: float = 0.5) -> tuple[FloatArray, FloatArray]:
+            share: float = 0.5, before: FloatArray | None = None,
+            min_seconds: float = 0.01) -> tuple[FloatArray, FloatArray]:
     """A desired trajectory from ``y_from`` to ``y_to`` µm (raised cosine, both ends included) whose
     commands, from the feedforward's initial state, change by at most ``share * limits.max_step``
     per sample (within the range). Returns (desired µm, commands V); the caller ramps the command
     from where the plant holds it to the first of them.
 
+    ``before`` (µm, ending at ``y_from``) is a desired trajectory the ramp follows, such as a
+    conditioning sweep: it is returned in front of the ramp, and the commands are computed over
+    both, the ramp's from the state the sweep leaves. The ramp lasts at least ``min_seconds``.
+
     The ramp's length starts at the safe layer's shortest ramp and doubles until the commands,
     computed offline with ``feedforward.command``, are that smooth (the inverse of an input lag is
     a lead: a fast ramp in displacement asks for a much faster one in volts).
     """
-    n = max(int(math.ceil(0.01 / dt)), 2)
+    n = max(int(math.ceil(min_seconds / dt)), 2)
     bound = share * limits.max_step
+    head = np.empty(0) if before is None else np.asarray(before, dtype=np.float64)[:-1]
     while True:
         k = np.arange(1, n + 1) / n
         desired = y_from + (y_to - y_from) * 0.5 * (1.0 - np.cos(np.pi * k))
-        desired = np.concatenate([[y_from], desired])
+        desired = np.concatenate([head, [y_from], desired])
         cmd = feedforward.command(desired)
-        steps = np.abs(np.diff(np.clip(cmd, limits.low, limits.high)))
+        steps = np.abs(np.diff(np.clip(cmd[head.size:], limits.low, limits.high)))
         if steps.max() <= bound or n > 2**22:
             return desired, cmd
         n *= 2
