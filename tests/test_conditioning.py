@@ -2,7 +2,8 @@
 
 A real stage's ``reset()`` only returns the command to rest: its hysteresis keeps the memory of
 what it did before. The sweep (rest, top of the range, bottom, rest) wipes that memory out, and the
-feedforward follows it through the model, so a run's result does not depend on the stage's past.
+feedforward follows it through the model, so a run's result does not depend on the stage's past;
+the identification starts with it too, and the fit runs through it without fitting it.
 """
 
 import warnings
@@ -80,6 +81,13 @@ def test_without_the_sweep_the_past_shows(memory_stage):
     a = _after(plant, ctl, 0.95, conditioning=False)
     b = _after(plant, ctl, 0.05, conditioning=False)
     assert np.max(np.abs(a.output - b.output)) > 1e-3 * np.ptp(a.reference)
+
+
+def test_the_identification_starts_with_the_sweep_and_does_not_fit_it(memory_stage):
+    plant, ctl = memory_stage
+    v = ctl.conditioning_command()
+    assert ctl.fit.info["warmup"] >= v.size
+    np.testing.assert_array_equal(ctl.identification.u[: v.size], v)
 
 
 def test_the_sweep_covers_the_range_inside_the_step_limit(memory_stage):

@@ -154,3 +154,43 @@ def test_designs_of_one_static_block_share_its_gram_and_agree_with_the_whole_des
             want = whole.T @ whole
             np.testing.assert_allclose(pre.gram(rows), want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
     assert sorted(a.static_grams) == sorted({a.n_rows(r) for r in (u.size, u.size - 7, int(0.9 * u.size), u.size // 3)})
+
+
+def test_warmup_makes_the_fit_independent_of_the_stage_past():
+    # a Preisach stage in two different states (what it did before nobody recorded), swept over
+    # its whole range and then excited: after the sweep both records are the same. With the sweep
+    # as warm-up (run through, not fitted) the fits are identical; fitted from the model's
+    # demagnetised state, each fits its own past into the model
+    rng = np.random.default_rng(3)
+    true = ph.Preisach(lo=0.0, hi=100.0, weights=rng.random(ph.models.preisach.grid_size(6)) * 0.01, slope=0.02)
+
+    def rc(a, b, n):
+        return a + (b - a) * 0.5 * (1 - np.cos(np.pi * np.arange(1, n + 1) / n))
+
+    sweep = np.concatenate([rc(40.0, 100.0, 400), rc(100.0, 0.0, 600)])
+    t = np.arange(6000) * DT
+    u = np.concatenate([sweep, 50.0 - 50.0 * np.cos(2 * np.pi * t) * np.linspace(1.0, 0.3, t.size)])
+    noise = 0.002 * rng.standard_normal(u.size)
+    fits = {}
+    for name, past in (("high", np.concatenate([rc(0.0, 90.0, 500), rc(90.0, 40.0, 400)])),
+                       ("low", np.concatenate([rc(0.0, 60.0, 500), rc(60.0, 40.0, 400)]))):
+        y = true.simulate(np.concatenate([past, u]))[past.size:] + noise
+        fits[name, 0] = ph.fit_model(u, y, DT, kind="preisach", delay=0)
+        fits[name, sweep.size] = ph.fit_model(u, y, DT, kind="preisach", delay=0, warmup=sweep.size)
+    a, b = fits["high", sweep.size], fits["low", sweep.size]
+    assert a.info["warmup"] == sweep.size
+    assert repr(a.model.to_dict()) == repr(b.model.to_dict()) and a.rmse == b.rmse
+    assert repr(fits["high", 0].model.to_dict()) != repr(fits["low", 0].model.to_dict())
+    # and the model predicts a new run after the same sweep better than the one fitted through it
+    test = np.concatenate([sweep, 50.0 - 30.0 * np.sin(2 * np.pi * 2.0 * np.arange(3000) * DT)])
+    truth = true.simulate(np.concatenate([u, test]))[-test.size:][sweep.size:]
+    err = {w: float(np.sqrt(np.mean((truth - fits["high", w].model.predict(test, DT)[sweep.size:]) ** 2)))
+           for w in (0, sweep.size)}
+    assert err[sweep.size] < err[0]
+
+
+def test_warmup_is_checked():
+    u = record()
+    y = 0.2 * u
+    with pytest.raises(ValueError, match="warmup"):
+        ph.fit_model(u, y, DT, kind="pi", warmup=u.size)

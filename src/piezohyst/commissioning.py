@@ -38,21 +38,25 @@ ablation and in ``tests/test_commission.py``):
    reference ``delay`` samples ahead (the reference is known in advance; this cancels the
    sensor's delay). Every run starts with a lead-in: the desired displacement ramps from rest to
    the reference's first value slowly enough that the commands stay inside the step limit. With
-   ``conditioning=True`` (``commission(...)``, or per run ``track(...)``) a conditioning sweep
-   comes first (:meth:`CommissionedController.conditioning_command`: from rest to the top of the
-   range and the bottom, then up to the first target, at least 0.25 s per leg): it wipes out
-   the stage's memory of whatever it did before, and the feedforward follows it through the
-   model, so stage and model start the run in the same state. Without it a run starts from the
-   plant's state after ``reset()`` and the model's initial one, which agree only where reset
-   restores the state the identification started from; a real stage's "reset" only returns the
-   command to rest, and on a bipolar stage resting mid-range its hysteresis keeps the memory of
-   the last runs. It is off by default: it drives the stage over its full stroke before every
-   run, and the sweep excites creep that a short run then carries (measured on the zoo, the
-   feedforward alone at 1/3/5 Hz, % of span: the dead-zone stage 1.61/1.33/1.48 -> 0.87/0.56/
-   0.77, asymmetric Bouc-Wen 0.75/0.87/0.82 -> 0.73/0.72/0.76, falling after reversal
-   0.87/1.00/1.22 -> 0.86/0.92/1.05, but the Duhem stage, with a 0.5 s creep, 1.26/1.05/1.10 ->
-   1.12/1.25/1.47; the others within 0.03; a bipolar relay stage that keeps its memory: the same
-   run after any past, to the bit).
+   ``commission(..., conditioning=True)`` (or per run ``track(..., conditioning=True)``) a
+   conditioning sweep comes first (:func:`conditioning_sweep`: from rest to the top of the range
+   and the bottom, then a rise to the first target, at least 0.25 s per leg); it wipes out the
+   stage's memory of whatever it did before, and the feedforward follows it through the model,
+   so stage and model start the run in the same state. The identification run and the tuning's
+   experiments then start with it too, and the fit runs its candidates through it without
+   fitting it (``fit_model``'s ``warmup``): the model's initial state need not be the stage's.
+   Without it, a run starts from the plant's state after ``reset()`` and the model's initial
+   one, which agree only where reset restores the state the identification started from; a
+   real stage's "reset" only returns the command to rest, and a stage resting mid-range keeps
+   the memory of its last runs. Measured on the zoo (feedforward alone, e_max % of span at
+   1/3/5 Hz, without -> with): the asymmetric Bouc-Wen stage when its reset keeps that memory
+   1.88/2.63/3.35 -> 0.80/0.64/0.88 (and every stage within 0.03 of its figures from a true
+   reset); from a true reset, dead zone 1.61/1.33/1.48 -> 0.90/0.63/0.97, falling after reversal
+   0.87/1.00/1.22 -> 0.92/0.98/1.00, Duhem 1.26/1.05/1.10 -> 1.33/0.93/1.13, asymmetric
+   Maxwell-slip 0.21/0.17/0.20 -> 0.27/0.21/0.22. It is off by default: it drives the stage over
+   its full stroke before every run, and on the VirtualRig (whose reset is a true one) it costs:
+   0.67/0.56/0.58 -> 0.80/0.65/0.64, and the tuned integral gain falls from 881 to 44 1/s (the
+   sweep's creep still drifts during the tuning's experiments).
 4. **Feedback** (plants with a per-sample loop only): integral action added to the *command*,
    scaled by the model's mean inverse slope (V per µm), with anti-windup on the range. Its gain
    comes from the identified model and the measured delay (a phase-margin rule on the model's
@@ -170,6 +174,21 @@ def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100
     tail = _join(choose, float(head[-1]), limits, dt)
     back = limits.ramp(float(tail[-1]), limits.rest, dt)
     return np.concatenate([head, tail, back])
+
+
+def conditioning_sweep(limits: CommandLimits, dt: float, leg_s: float = 0.25) -> FloatArray:
+    """The conditioning sweep's command (V): from rest to the top of the range and down to the
+    bottom, raised-cosine legs of at least ``leg_s`` seconds each, inside the step limit (module
+    docstring, step 3). It wipes out a hysteresis' memory of whatever came before."""
+    out, last = [np.array([limits.rest])], limits.rest
+    for end in (limits.high, limits.low):
+        if end == last:
+            continue
+        n = max(limits.ramp_length(end - last, dt), int(math.ceil(leg_s / dt)))
+        k = np.arange(1, n + 1) / n
+        out.append(last + (end - last) * 0.5 * (1.0 - np.cos(np.pi * k)))
+        last = end
+    return np.concatenate(out)
 
 
 def identification_length(dt: float, u_range: tuple[float, float] = (0.0, 100.0), *,
@@ -336,7 +355,9 @@ class CommissionedController:
         tguard = GuardedPlant(self.plant, self._limits())
         self.tuning = tune_integral_safely(tguard, self.feedforward(), self.model, delay=self.delay,
                                            level=float(np.median(self.identification.y)),
-                                           volts_per_um=self.volts_per_um, options=options)
+                                           volts_per_um=self.volts_per_um, options=options,
+                                           conditioning=self.conditioning_command() if self.conditioning else None,
+                                           rise_s=self.CONDITIONING_LEG_S)
         return tguard.counts()
 
     def feedforward(self) -> Compensator:
@@ -354,21 +375,10 @@ class CommissionedController:
         return float(self.model.predict(np.full(2, limits.rest), dt)[-1])
 
     def conditioning_command(self) -> FloatArray:
-        """The conditioning sweep's command (V): from rest to the top of the range and down to the
-        bottom, raised-cosine legs of at least :attr:`CONDITIONING_LEG_S` each, inside the step
-        limit (module docstring, step 3). A run then rises from the bottom to its first target
-        as slowly (a quick rise would ring a lightly damped stage into the run's first cycle)."""
-        limits = self._limits()
-        dt = self.plant.dt
-        out, last = [np.array([limits.rest])], limits.rest
-        for end in (limits.high, limits.low):
-            if end == last:
-                continue
-            n = max(limits.ramp_length(end - last, dt), int(math.ceil(self.CONDITIONING_LEG_S / dt)))
-            k = np.arange(1, n + 1) / n
-            out.append(last + (end - last) * 0.5 * (1.0 - np.cos(np.pi * k)))
-            last = end
-        return np.concatenate(out)
+        """This controller's :func:`conditioning_sweep` (legs of :attr:`CONDITIONING_LEG_S`). A run
+        then rises from the bottom to its first target as slowly (a quick rise would ring a lightly
+        damped stage into the run's first cycle)."""
+        return conditioning_sweep(self._limits(), self.plant.dt, self.CONDITIONING_LEG_S)
 
     def _lead_in(self, ff: Compensator, limits: CommandLimits, y_to: float, conditioning: bool) -> tuple[FloatArray, FloatArray]:
         """Desired µm and commands from rest to ``y_to``: through the conditioning sweep (the
@@ -732,10 +742,12 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         Called with a short description before each stage (and passed on to
         :func:`~piezohyst.identify.fit_model`); a :class:`~piezohyst.Progress` shows them.
     conditioning : bool
-        Start every tracking run with the conditioning sweep over the whole range (module
-        docstring, step 3; the controller's ``conditioning``, also per run in ``track``): for a
-        stage whose hysteresis keeps the memory of earlier runs. Off by default (the stage
-        travels its full stroke before each run).
+        Start the identification run and every tracking run with the conditioning sweep over the
+        whole range (module docstring, step 3; the controller's ``conditioning``, also per run in
+        ``track``); the identification's sweep is not fitted (``fit_model``'s ``warmup``), so the
+        model's initial state need not be the stage's: for a stage whose hysteresis keeps the
+        memory of what it did before. Off by default (the stage travels its full stroke before
+        each run).
 
     Returns
     -------
@@ -761,6 +773,15 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
                 f"{limits.high:g} V, largest step {chk['largest_step_V']:.4g} V (limit {limits.max_step:.4g} V "
                 f"per sample, max_step_fraction={max_step_fraction:g}, from the rest command {limits.rest:g} V); "
                 "ramp it or change the limits")
+    warmup = 0
+    if conditioning:
+        # the stage's past wiped out first; the fit runs its model through the sweep, unfitted
+        sweep = conditioning_sweep(limits, dt, CommissionedController.CONDITIONING_LEG_S)
+        pre = np.concatenate([sweep, limits.ramp(float(sweep[-1]), limits.rest, dt)])
+        cmd = np.concatenate([pre, cmd])
+        warmup = int(pre.size)
+        if n_id is not None:
+            n_id += warmup
     guard = GuardedPlant(plant, limits)
     say = progress or (lambda s: None)
     say(f"identification run ({cmd.size * dt:.3g} s)")
@@ -779,9 +800,9 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     if n_id is not None:
         # fit on the identification part, choose on the rest; the winner is refitted on all of it
         fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, holdout=int(ds.u.size - n_id),
-                        progress=progress)
+                        progress=progress, warmup=warmup)
     else:
-        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, progress=progress)
+        fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, progress=progress, warmup=warmup)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain,
                                  limits=limits, max_plays=max_plays, conditioning=bool(conditioning))
     tune_counts = None

@@ -398,7 +398,7 @@ def hold_at_level(plant: Any, ff: Any, pid: Any, *, n: int, level: float, add: f
 
 def tune_integral_safely(
     plant: Any, feedforward: Any, model: Any, *, delay: int, level: float, volts_per_um: float,
-    options: SafeTuningOptions | None = None,
+    options: SafeTuningOptions | None = None, conditioning: Any = None, rise_s: float = 0.01,
 ) -> TuningResult:
     """Integral feedback (at the command, in V per µm) tuned from the model, refined on the plant
     by bounded experiments.
@@ -456,6 +456,10 @@ def tune_integral_safely(
         Desired displacement to hold, µm.
     volts_per_um : float
         The feedback's output scale (the model's mean inverse slope).
+    conditioning : array_like, optional
+        A conditioning sweep's command (V, from rest) that the experiments start with, followed
+        through the model by the feedforward (as a commissioned controller's runs start with
+        it); the rise from its end to ``level`` then lasts at least ``rise_s`` seconds.
     """
     from .compiled_loop import run_hold
     from .pid import PID
@@ -480,8 +484,12 @@ def tune_integral_safely(
     ki_top = min(opt.max_factor * ki_model, ki_u_model / opt.back_off)
     # -- 2. bounded experiments, one continuous session
     plant.reset()
-    y_rest = float(model.predict(np.full(2, lim.rest), dt if model.dynamic else None)[-1])
-    desired, cmd = lead_in(ff, y_rest, level, lim, dt)
+    if conditioning is not None:
+        sweep = np.asarray(model.predict(np.asarray(conditioning, dtype=np.float64), dt if model.dynamic else None))
+        desired, cmd = lead_in(ff, float(sweep[-1]), level, lim, dt, before=sweep, min_seconds=rise_s)
+    else:
+        y_rest = float(model.predict(np.full(2, lim.rest), dt if model.dynamic else None)[-1])
+        desired, cmd = lead_in(ff, y_rest, level, lim, dt)
     plant.ramp_to(float(cmd[0]))
     settle = max(int(round(0.05 / dt)), 20)
     desired = np.concatenate([desired, np.full(settle, level)])

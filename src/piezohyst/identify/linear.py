@@ -273,15 +273,31 @@ def _cached_product(cache: dict[int, FloatArray], k: int, rows_product: Callable
 
 
 def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray | None = None,
-            cache: dict[Any, Any] | None = None, stride: int = 1) -> Prepared:
+            cache: dict[Any, Any] | None = None, stride: int = 1, first: int = 0) -> Prepared:
     """Regressors of structure ``st`` for the input ``u`` (from rest).
 
     ``u_ref`` (default ``u``) is the part of the record the structure's data-derived settings
     (thresholds, grid) come from: the fitting rows, so nothing is read off held-out data.
     ``cache`` (a dict kept by the caller for one record) shares the blocks structures have in
     common: the lagged input, the static part's columns, each lag's column. With ``stride > 1``
-    only every ``stride``-th row is kept (the states are still computed at every sample).
+    only every ``stride``-th row is kept (the states are still computed at every sample). With
+    ``first > 0`` (a multiple of ``stride``) the operators run from ``u[0]`` but the design's rows
+    start at sample ``first``: a warm-up that sets the states and is not fitted (the design is
+    that of the record ``u[first:]`` started from the state ``u[:first]`` leaves).
     """
+    if first:
+        if first % stride or not 0 < first < u.size:
+            raise ValueError(f"first={first} must be a multiple of stride={stride} inside the record")
+        all_rows = prepare(u, dt, st, u_ref=u_ref, cache=cache, stride=stride)
+        f = first // stride
+        grams = None
+        if cache is not None:  # S'S of these rows, shared by the designs of the same static block
+            ref_size = (u if u_ref is None else u_ref).size
+            grams = cache.setdefault(("static-gram-from", first, st.static, st.size, st.thresholds, st.u_max,
+                                      st.shape, st.input_tau, ref_size, stride), {})
+        return Prepared(st, all_rows.v[first:], all_rows.static[f:], all_rows.extra[f:], all_rows.p, all_rows.m,
+                        all_rows.a_lag, all_rows.decode_info, stride,
+                        all_rows.whole[f:] if all_rows.whole is not None else None, static_grams=grams)
     ref = u if u_ref is None else u_ref
     if st.rate_dependent and dt is None:
         raise ValueError("a rate-dependent structure needs the sample period dt")
@@ -598,7 +614,8 @@ REFIT_ROWS = 1_000_000
 
 def fit_structure(u: FloatArray, y: FloatArray, dt: float | None, st: Structure, *, n_fit: int | None = None,
                   margin: float | None = None, fit_offset: bool = True,
-                  prepared: Prepared | None = None, max_rows: int | None = REFIT_ROWS) -> tuple[FitResult, FloatArray]:
+                  prepared: Prepared | None = None, max_rows: int | None = REFIT_ROWS,
+                  warmup: int = 0) -> tuple[FitResult, FloatArray]:
     """Fit ``st`` on samples ``[0, n_fit)`` of the record (default all) and predict the whole record.
 
     Returns the fit and the prediction over the whole record (µm), aligned with ``y`` (the
@@ -608,7 +625,29 @@ def fit_structure(u: FloatArray, y: FloatArray, dt: float | None, st: Structure,
     k-th of them, k the smallest that keeps it within (the design matrix of a 10^7-sample record
     with a 16-level Preisach grid and lags would be 14 GB), and the model then predicts every
     sample (its own simulation), from which the RMSE is taken.
+
+    With ``warmup`` the first samples only set the model's state (:func:`prepare`'s ``first``,
+    rounded up to the row stride): the fit, the RMSE and the returned prediction are of
+    ``y[warmup:]`` (``n_fit`` counts from the record's start).
     """
+    if warmup:
+        n_all = u.size if n_fit is None else int(n_fit)
+        w = int(warmup)
+        stride = 1 if max_rows is None else max(1, -(-(n_all - w - st.delay) // int(max_rows)))
+        w = -(-w // stride) * stride
+        if margin is None:
+            margin = DEFAULT_MARGIN * mean_slope(u[w:n_all], y[w:n_all])
+        pre = prepare(u, dt, st, u_ref=u[w:n_all], stride=stride, first=w)
+        fit, pred = fit_structure(u[w:], y[w:], dt, st, n_fit=n_all - w, margin=margin, fit_offset=fit_offset,
+                                  prepared=pre, max_rows=max_rows)
+        if pre.stride > 1:  # the model's own simulation, from the record's start
+            model = fit.model
+            full = np.asarray(model.predict(u, dt if getattr(model, "dynamic", False) else None), dtype=np.float64)
+            d = st.delay
+            pred = (np.concatenate([np.full(d, full[0]), full[: u.size - d]]) if d else full)[w:]
+            fit.rmse = float(np.sqrt(np.mean((y[w + d:n_all] - pred[d:n_all - w]) ** 2)))
+        fit.info["warmup"] = w
+        return fit, pred
     t0 = time.perf_counter()
     n = u.size
     n_fit = n if n_fit is None else int(n_fit)

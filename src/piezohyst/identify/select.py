@@ -145,12 +145,16 @@ class _Scorer:
     """Fits a structure on the fitting rows and scores it on the hold-out or validation sets."""
 
     def __init__(self, u: FloatArray, y: FloatArray, dt: float | None, n_fit: int,
-                 validation: list[tuple[FloatArray, FloatArray, int]], margin: float):
+                 validation: list[tuple[FloatArray, FloatArray, int]], margin: float, *,
+                 warmup: FloatArray | None = None, stride: int | None = None):
         self.u, self.y, self.dt, self.n_fit = u, y, dt, n_fit
         self.validation = validation
         self.margin = margin
+        #: the samples before the record that only set the operators' states (fit_model's warmup)
+        self.warmup = np.empty(0) if warmup is None else warmup
+        self._u_states = np.concatenate([self.warmup, u]) if self.warmup.size else u
         #: the search fits on every stride-th row (at most SEARCH_ROWS rows); the refit uses all
-        self.stride = max(1, n_fit // SEARCH_ROWS)
+        self.stride = max(1, n_fit // SEARCH_ROWS) if stride is None else int(stride)
         self.tried: list[_Candidate] = []
         #: the prepared structures (design matrices), the most recently used last; at most
         #: PREPARED_KEPT of them, an evicted one's Gram matrices kept in _grams
@@ -186,7 +190,8 @@ class _Scorer:
         if pre is not None:
             self._prep.move_to_end(key)
             return pre
-        pre = prepare(self.u, self.dt, key, u_ref=self.u[: self.n_fit], cache=self._blocks, stride=self.stride)
+        pre = prepare(self._u_states, self.dt, key, u_ref=self.u[: self.n_fit], cache=self._blocks, stride=self.stride,
+                      first=self.warmup.size)
         pre._gram, pre._extra = self._grams.pop(key, (pre._gram, pre._extra))
         self._prep[key] = pre
         if len(self._prep) > PREPARED_KEPT:
@@ -277,7 +282,7 @@ def fit_model(
     taus: Sequence[float] | None = None, input_taus: Sequence[float] | None = None,
     max_delay: int | None = None, statics: Sequence[str] = ("pi", "preisach", "bouc-wen"),
     seed: Any = 0, bouc_wen_options: dict[str, Any] | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[str], None] | None = None, warmup: int = 0,
 ) -> FitResult:
     """Identify the model that predicts held-out data best (module docstring).
 
@@ -317,6 +322,13 @@ def fit_model(
         For the Bouc-Wen candidate (PSO).
     progress : callable, optional
         Called with a short description before each stage.
+    warmup : int
+        Samples at the record's start that only set the model's state: the candidates' operators
+        and lags run through them, but they are neither fitted nor scored (a conditioning sweep
+        that wipes out a stage's unknown past, so the model's initial state need not be the
+        stage's). The hold-out part and ``n_fit`` count from after them; the Bouc-Wen (PSO)
+        candidate starts from rest after them. Rounded up to the search's row stride;
+        ``info["warmup"]`` says what was used.
 
     Returns
     -------
@@ -347,6 +359,14 @@ def fit_model(
         n_fit = n_total if vsets else int(round((1.0 - holdout) * n_total))
     if n_fit < 50 or (not vsets and n_total - n_fit < 20):
         raise ValueError(f"{n_total} samples are too few to fit on one part and choose on another")
+    w = int(warmup)
+    if w < 0 or w > n_fit - 50:
+        raise ValueError(f"warmup of {warmup} samples leaves too little to fit on ({n_fit} samples to fit on)")
+    stride = max(1, (n_fit - w) // SEARCH_ROWS)
+    w = -(-w // stride) * stride
+    prefix = us[:w]
+    if w:
+        us, ys, n_total, n_fit = us[w:], ys[w:], n_total - w, n_fit - w
     if margin is None:
         margin = DEFAULT_MARGIN * mean_slope(us[:n_fit], ys[:n_fit])
     ranges = search_ranges(us, dt, n_fit)
@@ -359,7 +379,7 @@ def fit_model(
     bad = set(statics) - {"pi", "preisach", "bouc-wen"}
     if bad or not statics:
         raise ValueError(f"statics must be a non-empty selection of 'pi', 'preisach' and 'bouc-wen', got {list(statics)}")
-    sc = _Scorer(us, ys, dt, n_fit, vsets, margin)
+    sc = _Scorer(us, ys, dt, n_fit, vsets, margin, warmup=prefix, stride=stride)
     linear = [k for k in allowed if k in _LINEAR_KINDS]
     best: _Candidate | None = None
     if linear:
@@ -390,7 +410,7 @@ def fit_model(
     say("refit on the whole record")
     refused: list[str] = []
     if isinstance(best.structure, Structure):
-        final, _ = fit_structure(us, ys, dt, best.structure, margin=margin)
+        final, _ = _refit(prefix, us, ys, dt, best.structure, margin)
         if dt is not None:
             # the compensator must stay smooth: a candidate whose inverse chatters is passed over
             # for the next best (module docstring, "inverses that never chatter")
@@ -403,7 +423,7 @@ def fit_model(
             while _chatters(final.model, dt, ys, ranges) and queue:
                 refused.append(best.label)
                 best = queue.pop(0)
-                final, _ = fit_structure(us, ys, dt, best.structure, margin=margin)
+                final, _ = _refit(prefix, us, ys, dt, best.structure, margin)
     else:
         final = _fit_bouc_wen(us, ys, dt, best.structure[1], seed, bouc_wen_options)  # type: ignore[arg-type]
     span = float(np.ptp(ys))
@@ -421,8 +441,19 @@ def fit_model(
     final.info["chosen"] = best.label
     final.method = f"selection on held-out data: {best.label}"
     final.warnings = _quality_warnings(final, us, ys, dt, best, span, vsets, n_fit, sc) + final.warnings
+    if w:
+        final.info["warmup"] = w
     final.time_s = time.perf_counter() - t0
     return final
+
+
+def _refit(prefix: FloatArray, u: FloatArray, y: FloatArray, dt: float | None, st: Structure,
+           margin: float) -> tuple[FitResult, FloatArray]:
+    """The chosen structure on the whole training record (after the warm-up ``prefix``)."""
+    if not prefix.size:
+        return fit_structure(u, y, dt, st, margin=margin)
+    return fit_structure(np.concatenate([prefix, u]), np.concatenate([np.full(prefix.size, y[0]), y]), dt, st,
+                         margin=margin, warmup=prefix.size)
 
 
 def _complexity(st: Structure) -> int:
@@ -755,7 +786,8 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
         out.append(f"the hold-out error is {pct:.1f} % of the output's span: the model predicts new data "
                    f"poorly; a compensator built from it needs feedback")
     d = fit.delay
-    pred = fit.model.predict(u, dt)
+    w = sc.warmup.size
+    pred = fit.model.predict(np.concatenate([sc.warmup, u]), dt)[w:] if w else fit.model.predict(u, dt)
     resid = y[d:] - pred[: pred.size - d] if d else y - pred
     uu = u[: u.size - d] if d else u
     du = np.diff(uu)
