@@ -99,3 +99,30 @@ def test_identify_auto_on_real_data_beats_the_data_sets_own_model(tmp_path, caps
     pred = m.predict(ds.u[:8000], ds.dt)
     rmse = float(np.sqrt(np.mean((ds.y[4000:8000] - pred[4000 - d:8000 - d]) ** 2)))
     assert rmse == pytest.approx(v[0]["rmse"], rel=1e-9)
+
+
+def test_identify_warmup_runs_through_the_first_samples_without_fitting_them(tmp_path, capsys):
+    # a record that starts with a conditioning sweep from a state the model cannot know: with the
+    # sweep as warm-up the fit is the one fit_model gives with warmup, and it fits the rest better
+    rng = np.random.default_rng(3)
+    true = ph.Preisach(lo=0.0, hi=100.0, weights=rng.random(ph.models.preisach.grid_size(6)) * 0.01, slope=0.02)
+
+    def rc(a, b, n):
+        return a + (b - a) * 0.5 * (1 - np.cos(np.pi * np.arange(1, n + 1) / n))
+
+    past = np.concatenate([rc(0.0, 90.0, 500), rc(90.0, 40.0, 400)])
+    sweep = np.concatenate([rc(40.0, 100.0, 400), rc(100.0, 0.0, 600)])
+    t = np.arange(5000) * 1e-3
+    u = np.concatenate([sweep, 50.0 - 50.0 * np.cos(2 * np.pi * t) * np.linspace(1.0, 0.3, t.size)])
+    y = true.simulate(np.concatenate([past, u]))[past.size:] + 0.002 * rng.standard_normal(u.size)
+    path = tmp_path / "rec.csv"
+    np.savetxt(path, np.column_stack([np.arange(u.size) * 1e-3, u, y]), delimiter=",", header="t,u,y", comments="")
+    got = {}
+    for w in (0, sweep.size):
+        assert main(["identify", str(path), "--model", "preisach", "--delay", "0", "--warmup", str(w), "--json"]) == 0
+        got[w] = json.loads(capsys.readouterr().out)
+    want = ph.fit_model(u, y, 1e-3, kind="preisach", delay=0, warmup=sweep.size)
+    assert got[sweep.size]["fit"]["rmse"] == pytest.approx(want.rmse, rel=1e-12)
+    assert got[sweep.size]["fit"]["rmse"] < got[0]["fit"]["rmse"]
+    assert main(["identify", str(path), "--model", "pi", "--method", "lsq", "--warmup", "10"]) == 2
+    assert "--warmup" in capsys.readouterr().err

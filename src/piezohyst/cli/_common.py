@@ -200,6 +200,11 @@ def positive_int(text: str) -> int:
     return _integer(text, 1, "an integer >= 1")
 
 
+def nonnegative_int(text: str) -> int:
+    """An integer >= 0."""
+    return _integer(text, 0, "an integer >= 0")
+
+
 def seed(text: str) -> int:
     """A random seed: an integer >= 0 (what numpy's generators accept)."""
     return _integer(text, 0, "an integer >= 0")

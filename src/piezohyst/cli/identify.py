@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ._common import (UsageError, add_data_options, console, guarded, load_cli_dataset, positive_int, print_json,
-                      sample_range, seed)
+from ._common import (UsageError, add_data_options, console, guarded, load_cli_dataset, nonnegative_int, positive_int,
+                      print_json, sample_range, seed)
 
 #: --model choices: "auto" and every kind name and alias (from the registry, at parse time)
 _MODEL_HELP = ("model kind: auto (every kind, chosen on held-out data), pi (the paper's P-I), bouc-wen (the "
@@ -62,6 +62,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if method == "lsq" and kind not in ("prandtl-ishlinskii",):
         raise UsageError("--method lsq is for --model pi; the other kinds choose their structure on held-out data "
                          "(--method select, their default)")
+    if args.warmup and method != "select":
+        raise UsageError(f"--warmup is for the structure search (--method select); --method {method} fits every "
+                         "training sample (start the training part later with --train instead)")
     if kind == "bouc-wen" and method == "pso" and args.delay == "auto":
         raise UsageError("--delay auto is not available for --model bouc-wen with --method pso; give the delay in samples")
     ds = load_cli_dataset(args.data, args)
@@ -74,6 +77,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
             raise UsageError(f"{name} {a if a is not None else ''}:{b if b is not None else ''} is outside the "
                              f"file's {n} samples (or holds fewer than 2)")
     train = ds.slice(start, stop) if (start is not None or stop is not None) else ds
+    if args.warmup and args.warmup > len(train) - 100:
+        raise UsageError(f"--warmup {args.warmup} leaves fewer than 100 of the {len(train)} training samples to fit on")
     if isinstance(args.delay, int) and args.delay > len(train) - 2:
         raise UsageError(f"--delay {args.delay} leaves fewer than 2 of the {len(train)} training samples")
     if args.n is not None:
@@ -140,7 +145,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
 def _select(ph: Any, train: Any, kind: str, args: argparse.Namespace, vsets: list[Any], show: bool) -> Any:
     """``fit_model`` with a spinner naming the stage (on stderr; nothing with --json)."""
     opts = dict(validation=vsets or None, delay=args.delay, n=args.n, seed=args.seed,
-                bouc_wen_options={"max_iter": args.iterations, "polish": not args.no_polish})
+                bouc_wen_options={"max_iter": args.iterations, "polish": not args.no_polish}, warmup=args.warmup)
     dt = train.dt
     if not show:
         return ph.fit_model(train.u, train.y, dt, kind, **opts)
@@ -229,6 +234,10 @@ def register(sub: Any, add: Any) -> None:
                    help="samples by which the output lags the input, or 'auto' (default: searched on held-out data "
                    "with --method select, 0 with lsq/pso)")
     p.add_argument("--train", type=sample_range, default=(None, None), metavar="START:STOP", help="fit on these samples only")
+    p.add_argument("--warmup", type=nonnegative_int, default=0, metavar="SAMPLES",
+                   help="samples at the start of the training part that only set the model's state (e.g. a "
+                   "conditioning sweep over the whole range): run through, neither fitted nor scored "
+                   "(--method select; default 0)")
     p.add_argument("--validate", type=sample_range, default=(None, None), metavar="START:STOP",
                    help="choose on, and report the error on, these samples of the same file (simulated from its start)")
     p.add_argument("--validate-data", action="append", metavar="FILE",
