@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from piezohyst.cli._common import Terminated
+
 
 @dataclass(frozen=True)
 class Case:
@@ -491,3 +493,23 @@ if __name__ == "__main__":  # the census of whatever piezohyst is importable
             for case, code, err in res[cls]:
                 last = err.strip().splitlines()[-1] if err.strip() else ""
                 print(f"[{cls}] {case.name}: exit {code}: {last[:200]}")
+
+
+@pytest.mark.parametrize("interrupt, code, word", [(KeyboardInterrupt(), 130, "interrupted"),
+                                                   (Terminated(15), 143, "terminated")])
+def test_an_error_raised_while_an_interrupt_unwinds_is_reported_as_the_interrupt(monkeypatch, capsys, interrupt, code,
+                                                                                   word):
+    # found by tests/test_concurrency.py: Ctrl-C in the middle of drawing a figure, and matplotlib,
+    # cleaning up, raised "Invalid bounding box"; the run ended as an "internal error" (exit 1)
+    import piezohyst.cli as cli
+
+    def command(args, func):
+        try:
+            raise interrupt
+        finally:
+            raise ValueError("Invalid bounding box")
+
+    monkeypatch.setattr(cli, "run_with_std_streams", command)
+    assert cli.main(["models"]) == code
+    err = capsys.readouterr().err
+    assert word in err and "internal error" not in err

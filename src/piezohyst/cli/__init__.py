@@ -113,8 +113,31 @@ def _message(exc: BaseException) -> str:
     return one_line(exc) or type(exc).__name__
 
 
+#: the signal that interrupted this run, if one did (set by the handlers below)
+_signalled: list[int] = []
+
+
 def _on_terminate(signum: int, frame: Any) -> None:
+    _signalled.append(signum)
     raise Terminated(signum)
+
+
+def _on_interrupt(signum: int, frame: Any) -> None:
+    _signalled.append(signum)
+    raise KeyboardInterrupt
+
+
+def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C or termination an error was raised while handling (a library cleaning up after the
+    interrupt can fail in its turn: matplotlib, stopped mid-draw, then raises "Invalid bounding box")."""
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, KeyboardInterrupt):
+            return cur
+        seen.add(id(cur))
+        cur = cur.__cause__ or cur.__context__
+    return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -123,11 +146,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_in = [a for a in args_in if a != "--debug"]
     # SIGTERM/SIGHUP end the run like Ctrl-C: every finally runs (temporary files are removed)
     handlers = {}
+    _signalled.clear()
     if threading.current_thread() is threading.main_thread():
         for name in ("SIGTERM", "SIGHUP"):
             sig = getattr(signal, name, None)
             if sig is not None:
                 handlers[sig] = signal.signal(sig, _on_terminate)
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # (not when a caller ignores it)
+            handlers[signal.SIGINT] = signal.signal(signal.SIGINT, _on_interrupt)
     prog = "piezohyst"
     parser: argparse.ArgumentParser | None = None
     command = None
@@ -161,6 +187,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:
         if debug:
             raise
+        behind = _interrupt_behind(exc)
+        if behind is not None or _signalled:
+            term = isinstance(behind, Terminated) or (behind is None and _signalled[-1] != signal.SIGINT)
+            print(f"{prog}: {'terminated' if term else 'interrupted'}; no output was left half-written",
+                  file=sys.stderr)
+            return 143 if term else 130
         users = isinstance(exc, _user_errors()) or isinstance(exc, (OSError, MemoryError)) or (
             isinstance(exc, (ValueError, TypeError)) and is_deliberate(exc))
         if users:
