@@ -55,8 +55,10 @@ ablation and in ``tests/test_commission.py``):
    0.87/1.00/1.22 -> 0.92/0.98/1.00, Duhem 1.26/1.05/1.10 -> 1.33/0.93/1.13, asymmetric
    Maxwell-slip 0.21/0.17/0.20 -> 0.27/0.21/0.22. It is off by default: it drives the stage over
    its full stroke before every run, and on the VirtualRig (whose reset is a true one) it costs:
-   0.67/0.56/0.58 -> 0.80/0.65/0.64, and the tuned integral gain falls from 881 to 44 1/s (the
-   sweep's creep still drifts during the tuning's experiments).
+   0.67/0.56/0.58 -> 0.80/0.65/0.64, and the tuned integral gain falls from 881 to 16 1/s (with
+   the model it then chooses, a 40-operator P-I model, the tuning's first trial already overshoots,
+   and a gain the plant limits is scaled for the steepest branch; with feedback 0.68/0.67/0.56 ->
+   0.74/0.63/0.62).
 4. **Feedback** (plants with a per-sample loop only): integral action added to the *command*,
    scaled by the model's mean inverse slope (V per µm), with anti-windup on the range. Its gain
    comes from the identified model and the measured delay (a phase-margin rule on the model's
