@@ -292,9 +292,8 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
         f = first // stride
         grams = None
         if cache is not None:  # S'S of these rows, shared by the designs of the same static block
-            ref_size = (u if u_ref is None else u_ref).size
-            grams = cache.setdefault(("static-gram-from", first, st.static, st.size, st.thresholds, st.u_max,
-                                      st.shape, st.input_tau, ref_size, stride), {})
+            grams = cache.setdefault(("static-gram-from", first, *_static_key(st, u if u_ref is None else u_ref,
+                                                                             stride)), {})
         return Prepared(st, all_rows.v[first:], all_rows.static[f:], all_rows.extra[f:], all_rows.p, all_rows.m,
                         all_rows.a_lag, all_rows.decode_info, stride,
                         all_rows.whole[f:] if all_rows.whole is not None else None, static_grams=grams)
@@ -310,7 +309,7 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
         memo[key_v] = (v_all, v_ref_all)
     v, v_ref = memo[key_v]
     # the blocks are kept at the stored rows only (the states behind them run over every sample)
-    key_s = ("static", st.static, st.size, st.thresholds, st.u_max, st.shape, st.input_tau, ref.size, stride)
+    key_s = ("static", *_static_key(st, ref, stride))
     a_lag = np.exp(-float(dt or 0.0) / np.asarray(st.taus, dtype=np.float64)) if st.taus else np.zeros(0)
     m = a_lag.size
     rows = slice(None, None, stride)
@@ -340,6 +339,11 @@ def prepare(u: FloatArray, dt: float | None, st: Structure, *, u_ref: FloatArray
     extra[:, -1] = 1.0
     return Prepared(st, v, static_cols, extra, static_cols.shape[1], m, a_lag, info, stride, whole,
                     static_grams=None if cache is None else static_grams)
+
+
+def _static_key(st: Structure, ref: FloatArray, stride: int) -> tuple[Any, ...]:
+    """What a static block depends on besides the record: a cache key for it and its products."""
+    return (st.static, st.size, st.thresholds, st.u_max, st.shape, st.input_tau, ref.size, stride)
 
 
 def _static_width(st: Structure) -> int:
