@@ -108,7 +108,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ._validation import FloatArray, as_signal
-from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead_in
+from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead_in, lead_in_after
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
@@ -388,8 +388,8 @@ class CommissionedController:
         dt = self.plant.dt
         if not conditioning:
             return lead_in(ff, self._rest_output(limits), y_to, limits, dt)
-        sweep = self.model.predict(self.conditioning_command(), dt if self.model.dynamic else None)
-        return lead_in(ff, float(sweep[-1]), y_to, limits, dt, before=sweep, min_seconds=self.CONDITIONING_LEG_S)
+        return lead_in_after(ff, self.model, self.conditioning_command(), y_to, limits, dt,
+                             rise_s=self.CONDITIONING_LEG_S)
 
     def track(self, reference: Any, *, feedback: bool | None = None, learning: bool = True,
               period: int | None = None, label: str = "", max_plays: int | None = None,

@@ -313,6 +313,15 @@ def lead_in(feedforward: Any, y_from: float, y_to: float, limits: Any, dt: float
         n *= 2
 
 
+def lead_in_after(feedforward: Any, model: Any, sweep: Any, y_to: float, limits: Any, dt: float, *,
+                  rise_s: float) -> tuple[FloatArray, FloatArray]:
+    """:func:`lead_in` after a conditioning sweep (``sweep``, V, from the model's initial state):
+    the desired trajectory is the model's output along the sweep, which the feedforward then
+    follows back to those commands, and a rise of at least ``rise_s`` seconds to ``y_to``."""
+    ys = np.asarray(model.predict(np.asarray(sweep, dtype=np.float64), dt if model.dynamic else None), dtype=np.float64)
+    return lead_in(feedforward, float(ys[-1]), y_to, limits, dt, before=ys, min_seconds=rise_s)
+
+
 def track(
     plant: Any, reference: Any, feedforward: _Stepper | None = None, feedback: Any = None, *,
     feedback_at: str = "reference", period: int | None = None, reset: bool = True,

@@ -464,7 +464,7 @@ def tune_integral_safely(
     """
     from .compiled_loop import run_hold
     from .pid import PID
-    from .tracking import lead_in
+    from .tracking import lead_in, lead_in_after
 
     opt = options or SafeTuningOptions()
     dt = plant.dt
@@ -486,8 +486,7 @@ def tune_integral_safely(
     # -- 2. bounded experiments, one continuous session
     plant.reset()
     if conditioning is not None:
-        sweep = np.asarray(model.predict(np.asarray(conditioning, dtype=np.float64), dt if model.dynamic else None))
-        desired, cmd = lead_in(ff, float(sweep[-1]), level, lim, dt, before=sweep, min_seconds=rise_s)
+        desired, cmd = lead_in_after(ff, model, conditioning, level, lim, dt, rise_s=rise_s)
     else:
         y_rest = float(model.predict(np.full(2, lim.rest), dt if model.dynamic else None)[-1])
         desired, cmd = lead_in(ff, y_rest, level, lim, dt)
