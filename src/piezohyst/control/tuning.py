@@ -348,6 +348,12 @@ class SafeTuningOptions:
 #: probe's the same way somewhere (noise alone: about 1 and 1 +- 0.15).
 RIPPLE_LIMIT = 2.0
 RIPPLE_GROWTH = 1.3
+#: The feedback's averaged answer to a probe must reach at least this share of it within the trial
+#: (at least 8 of the loop's nominal time constants) for the trial to show anything: a smaller one
+#: means the stage barely answers a reversal at the hold (its loop there nearly open: a stage that
+#: goes on falling after a reversal answered 0.00-0.01 of the probe), and its damping on the
+#: branches a tracking run climbs is unknown.
+MIN_ANSWER = 0.5
 #: Seconds the feedforward alone holds the stage after a trial whose oscillation grew.
 RING_DOWN_S = 0.5
 #: A hold is settled (:func:`tune_integral_safely`, step 2) when its error is within this many
@@ -422,6 +428,8 @@ def tune_integral_safely(
        off, within the same bounds widened by that error (and the command that cancels it); the
        probes come after, so their answers are answers to the probes and not to the offset
        (without this, every trial on such a stage was aborted and it got no feedback at all).
+       A trial whose averaged answer never reaches :data:`MIN_ANSWER` of the probe shows nothing
+       (the stage barely answers a reversal at the hold) and does not count as well damped.
        A gain is not well damped either when, once each probe's answer has settled, the error's
        sample-to-sample RMS is more than :data:`RIPPLE_LIMIT` times the feedforward-alone noise
        and grows by more than :data:`RIPPLE_GROWTH` from one probe to the next one the same way:
@@ -571,9 +579,11 @@ def tune_integral_safely(
             pid.integral = integral0
             pid.ki = 0.0
             run(max(n_p, int(round(RING_DOWN_S / dt))), False, 0.0, 0.0, False)
-        ok = overshoot <= opt.overshoot_limit and not grows
+        answered = aborted or overshoot + 1.0 >= MIN_ANSWER
+        ok = overshoot <= opt.overshoot_limit and not grows and answered
         trials.append((ki, overshoot))
         experiments.append({"ki": ki, "overshoot": None if aborted else overshoot, "aborted": aborted,
+                            "answered": answered,
                             "samples": n_p, "well_damped": ok, "probe_V": probe,
                             "command_band_V": (state["u_lo"], state["u_hi"]),
                             "hold_error_um": offset, "settled_first": settle,
