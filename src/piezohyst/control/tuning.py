@@ -619,7 +619,7 @@ def tune_integral_safely(
     # oscillation once: a Maxwell-slip stage with a 384 Hz resonance at 3 % damping kept ki 456
     # 1/s, found at the reversal's slope, and tracked oscillating at the resonance, 8 % e_max
     # with feedback against 1.5 % without; now 117 1/s.)
-    plant_limited = any(not e.get("well_damped") or e.get("oscillation_grows") for e in experiments)
+    plant_limited = any(not e["well_damped"] for e in experiments)  # (a growing oscillation is not well damped)
     if plant_limited and ki_ok > 0:
         chord = reversal_chord_slope(model, dt, u_level=u_level, u_range=(lim.low, lim.high), step=probe)
         steepest = major_loop_steepest_slope(model, dt, u_range=(lim.low, lim.high))
