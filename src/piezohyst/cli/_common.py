@@ -207,7 +207,7 @@ def nonnegative_int(text: str) -> int:
 
 def seed(text: str) -> int:
     """A random seed: an integer >= 0 (what numpy's generators accept)."""
-    return _integer(text, 0, "an integer >= 0")
+    return nonnegative_int(text)
 
 
 def figure_formats(text: str) -> tuple[str, ...]:
