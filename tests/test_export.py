@@ -63,6 +63,7 @@ def example_models():
     rate_pi = ph.RateDependent(static=pi, taus=[0.002, 0.03, 0.4], lag_weights=[0.003, 0.0015, -0.0004],
                                dt=DT, input_tau=4e-4)
     out_map = ph.OutputMap(knots=[0.4, 1.9], coefficients=[0.5, 0.8], centre=1.0)
+    duhem_knots = np.linspace(0.0, 100.0, 6)
     return {
         "prandtl-ishlinskii": pi,
         "preisach": pre,
@@ -76,6 +77,13 @@ def example_models():
         # invertible within its operating range only (alpha M = 1.13 over every state, 0.94 within)
         "bouc-wen-hysteresis (operating range)": ph.BoucWenHysteresis(d1=0.021, alpha=0.31, beta=0.02, gamma=-0.009,
                                                                       offset=0.02, v_range=(-15.0, 115.0)),
+        "generalized-duhem": ph.GeneralizedDuhem(duhem_knots, f=0.04 * 0.6 * np.tanh(duhem_knots / 80.0),
+                                                 g=0.006 * (1.0 - 0.4 * (duhem_knots / 100.0) ** 2), lam=0.04,
+                                                 offset=0.03),
+        "rate-dependent (generalized Duhem)": ph.RateDependent(
+            static=ph.GeneralizedDuhem([-30.0, 0.0, 40.0, 100.0], f=[-0.004, 0.0, 0.003, 0.005],
+                                       g=[0.012, 0.01, 0.009, 0.006], lam=0.02, offset=-0.2, v_range=(-30.0, 100.0)),
+            taus=[0.003, 0.2], lag_weights=[0.001, -0.0003], dt=DT, input_tau=5e-4),
         "rate-dependent (Bouc-Wen hysteresis)": ph.RateDependent(
             static=ph.BoucWenHysteresis(d1=0.021, alpha=0.4, beta=0.035, gamma=0.01), taus=[0.003, 0.2],
             lag_weights=[0.002, -0.0007], dt=DT, input_tau=5e-4),

@@ -39,16 +39,32 @@ def _bwh_ranged():
     return ph.BoucWenHysteresis(d1=0.02, alpha=0.31, beta=0.03, gamma=-0.012, offset=0.05, v_range=(0.0, 100.0))
 
 
+def _duhem():
+    """Coleman-Hodgdon: ``F = lam f`` with ``f`` a tanh anhysteretic curve, ``G`` falling towards the top."""
+    k = np.linspace(0.0, 100.0, 6)
+    return ph.GeneralizedDuhem(k, f=0.04 * 0.6 * np.tanh(k / 80.0), g=0.006 * (1.0 - 0.4 * (k / 100.0) ** 2),
+                               lam=0.04, offset=0.03)
+
+
+def _duhem_bipolar():
+    """Bipolar, skewed (``F`` not odd), with an operating range wider than its knots."""
+    k = np.array([-30.0, 0.0, 40.0, 100.0])
+    return ph.GeneralizedDuhem(k, f=np.array([-0.004, 0.0, 0.003, 0.005]), g=np.array([0.012, 0.01, 0.009, 0.006]),
+                               lam=0.02, offset=-0.2, v_range=(-30.0, 100.0))
+
+
 EXAMPLES = {
     "prandtl-ishlinskii": [_pi],
     "bouc-wen": [lambda: ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072, gamma=0.0)],
     "preisach": [_preisach],
     "bouc-wen-hysteresis": [_bwh, _bwh_ranged],
+    "generalized-duhem": [_duhem, _duhem_bipolar],
     "rate-dependent": [
         lambda: ph.RateDependent(_pi(), [0.005, 0.05, 1.0], [0.001, -0.0015, 0.0008], DT, input_tau=0.002),
         lambda: ph.RateDependent(_preisach(), [0.02], [0.001], DT),
         lambda: ph.RateDependent(_bwh(), [0.01, 0.3], [0.002, 0.001], DT, input_tau=0.003),
         lambda: ph.RateDependent(_bwh_ranged(), [0.01, 0.3], [0.002, 0.001], DT, input_tau=0.003),
+        lambda: ph.RateDependent(_duhem(), [0.01, 0.3], [0.001, 0.0005], DT, input_tau=0.003),
     ],
     "asymmetric-pi": [
         lambda: ph.AsymmetricPI(_pi(), ph.OutputMap([0.5, 1.5], [0.4, -0.5], 1.0)),

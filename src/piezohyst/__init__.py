@@ -36,6 +36,7 @@ _LAZY: dict[str, str] = {
     "fit_model": "identify", "fit_asymmetric_pi": "identify", "fit_preisach": "identify",
     "fit_rate_dependent": "identify",
     "AsymmetricPI": "models", "BoucWen": "models", "BoucWenHysteresis": "models", "BoucWenStepper": "models", "Compensator": "models",
+    "GeneralizedDuhem": "models",
     "HysteresisModel": "models", "OutputMap": "models", "PIStepper": "models", "Preisach": "models",
     "PrandtlIshlinskii": "models", "RateDependent": "models", "RateDependentPI": "models",
     "equal_thresholds": "models", "play_operator": "models", "kinds": "models",
@@ -95,7 +96,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .identify import (FitResult, fit_asymmetric_pi, fit_bouc_wen, fit_model, fit_pi,  # noqa: F401
                            fit_preisach, fit_rate_dependent, fit_rate_pi)
     from .modelio import ModelFileError, load_model, save_model  # noqa: F401
-    from .models import (AsymmetricPI, BoucWen, BoucWenHysteresis, BoucWenStepper, Compensator, HysteresisModel,  # noqa: F401
+    from .models import (AsymmetricPI, BoucWen, BoucWenHysteresis, BoucWenStepper, Compensator,  # noqa: F401
+                         GeneralizedDuhem, HysteresisModel,
                          OutputMap, PIStepper, PrandtlIshlinskii, Preisach, RateDependent, RateDependentPI,
                          equal_thresholds, kinds, play_operator)
     from .plant import BufferedPlant, CommandLimits, GuardedPlant, Plant, open_loop  # noqa: F401

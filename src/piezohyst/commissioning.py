@@ -30,7 +30,8 @@ ablation and in ``tests/test_commission.py``):
    amplifier range the plant reports (``plant.u_range``) or the one given. A buffered plant
    plays it as one table (from the command it holds).
 2. **Model**: chosen on held-out data among every linear kind and structure
-   (:func:`~piezohyst.identify.fit_model`): P-I, asymmetric P-I or Preisach, with an input lag
+   (:func:`~piezohyst.identify.fit_model`): P-I, asymmetric P-I, Preisach, Bouc-Wen hysteresis or
+   generalised Duhem (Coleman-Hodgdon), with an input lag
    (amplifier + stack) and output lags (rate dependence, creep) where they predict better, the
    sensor delay searched over what the data show; each candidate is one bounded least-squares
    fit, invertible with a stable inverse by construction (:mod:`piezohyst.identify.linear`).
@@ -118,7 +119,8 @@ from .plant import (MAX_STEP_FRACTION, CommandLimits, GuardedPlant, check_plant,
 from .signals import estimate_period, sinusoid
 
 #: The kinds commissioning chooses from: fast to fit, each with an exact or numerical inverse.
-COMMISSION_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach", "bouc-wen-hysteresis")
+COMMISSION_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach", "bouc-wen-hysteresis",
+                    "generalized-duhem")
 #: What a result says when a plant has no per-sample loop.
 NO_LOOP = ("no feedback: the plant only plays tables (BufferedPlant), so there is no per-sample loop to "
            "close; learning across plays corrects the feedforward instead")

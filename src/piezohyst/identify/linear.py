@@ -39,6 +39,7 @@ from .._numba import njit
 from .._validation import FloatArray
 from ..models.asymmetric_pi import AsymmetricPI, OutputMap
 from ..models.bouc_wen_hysteresis import BoucWenHysteresis, max_unit_slope, unit_hysteresis
+from ..models.duhem import GeneralizedDuhem, duhem_columns
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
 from ..models.play import play_outputs_strided_into
 from ..models.preisach import Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs_into
@@ -62,11 +63,13 @@ class Structure:
 
     Attributes
     ----------
-    static : {"pi", "preisach", "bouc-wen"}
+    static : {"pi", "preisach", "bouc-wen", "duhem"}
         The rate-independent part (``"bouc-wen"``: the Bouc-Wen hysteresis of
-        :mod:`piezohyst.models.bouc_wen_hysteresis`, its shape fixed by ``shape``).
+        :mod:`piezohyst.models.bouc_wen_hysteresis`, its shape fixed by ``shape``; ``"duhem"``:
+        the generalised Duhem model of :mod:`piezohyst.models.duhem`, its relaxation rate
+        ``lam = shape[0]`` fixed, ``F`` and ``G`` fitted at ``size`` knots over the input's range).
     size : int
-        P-I operators, or Preisach grid levels (unused for Bouc-Wen).
+        P-I operators, Preisach grid levels or Duhem knots (unused for Bouc-Wen).
     map_knots : int
         Knots of the asymmetric P-I model's output map (0: no map; P-I only).
     taus : tuple of float
@@ -91,8 +94,11 @@ class Structure:
     shape: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
-        if self.static not in ("pi", "preisach", "bouc-wen"):
-            raise ValueError(f"static must be 'pi', 'preisach' or 'bouc-wen', got {self.static!r}")
+        if self.static not in ("pi", "preisach", "bouc-wen", "duhem"):
+            raise ValueError(f"static must be 'pi', 'preisach', 'bouc-wen' or 'duhem', got {self.static!r}")
+        if self.static == "duhem" and not (self.shape[0] > 0 and self.size >= 2):
+            raise ValueError(f"a Duhem structure needs lam = shape[0] > 0 and at least 2 knots, got {self.shape}, "
+                             f"{self.size}")
         if self.static == "bouc-wen" and not self.shape[0] > abs(self.shape[1]):
             raise ValueError(f"a Bouc-Wen shape needs beta > |gamma|, got {self.shape}")
         if self.map_knots and self.static != "pi":
@@ -114,13 +120,15 @@ class Structure:
             return "asymmetric-pi"
         if self.rate_dependent:
             return "rate-dependent"
-        return {"pi": "prandtl-ishlinskii", "preisach": "preisach", "bouc-wen": "bouc-wen-hysteresis"}[self.static]
+        return {"pi": "prandtl-ishlinskii", "preisach": "preisach", "bouc-wen": "bouc-wen-hysteresis",
+                "duhem": "generalized-duhem"}[self.static]
 
     def label(self) -> str:
         """A one-line description (static part, size, lags, delay), as the candidates tables show."""
         name = {"pi": f"P-I n={self.size}" + (" (eq. 4 thresholds)" if self.thresholds == "eq4" else ""),
                 "preisach": f"Preisach {self.size} levels",
-                "bouc-wen": f"Bouc-Wen hysteresis beta={self.shape[0]:.3g}/V gamma={self.shape[1]:.3g}/V"}[self.static]
+                "bouc-wen": f"Bouc-Wen hysteresis beta={self.shape[0]:.3g}/V gamma={self.shape[1]:.3g}/V",
+                "duhem": f"generalized Duhem {self.size} knots lam={self.shape[0]:.3g}/V"}[self.static]
         if self.map_knots:
             name = f"asymmetric {name}, {self.map_knots} map knots"
         parts = [name]
@@ -138,6 +146,8 @@ class Structure:
                "thresholds": self.thresholds}
         if self.static == "bouc-wen":
             out["beta_per_V"], out["gamma_per_V"] = self.shape
+        if self.static == "duhem":
+            out["lam_per_V"] = self.shape[0]
         return out
 
 
@@ -348,7 +358,7 @@ def _static_key(st: Structure, ref: FloatArray, stride: int) -> tuple[Any, ...]:
 
 def _static_width(st: Structure) -> int:
     """How many free columns the static part of ``st`` has (:func:`_static_columns`)."""
-    return {"pi": st.size, "bouc-wen": 1}.get(st.static) or grid_size(st.size)
+    return {"pi": st.size, "bouc-wen": 1, "duhem": 2 * st.size}.get(st.static) or grid_size(st.size)
 
 
 def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int = 1, *,
@@ -386,6 +396,13 @@ def _static_columns(v: FloatArray, v_ref: FloatArray, st: Structure, stride: int
         floor = np.array(vs, dtype=np.float64)
         info["max_unit_slope"] = mslope
         info["v_range"] = v_range
+    elif st.static == "duhem":
+        # G at the knots (columns 0..K-1, each G_j = floor + t_j, t_j >= 0), then F (free)
+        knots = np.linspace(float(v_ref.min()), float(v_ref.max()), st.size)
+        static_cols = duhem_columns(v, knots, st.shape[0], stride, out=out)
+        floor = static_cols[:, :st.size].sum(axis=1)  # the output for G = 1, F = 0
+        info["knots"] = knots
+        info["v_range"] = (min(float(v_ref.min()), 0.0), max(float(v_ref.max()), 0.0))
     else:
         lo, hi = float(v_ref.min()), float(v_ref.max())
         pad = 1e-9 * (hi - lo)
@@ -488,7 +505,7 @@ def _design(pre: Prepared, margin: float, fit_offset: bool) -> tuple[FloatArray,
     st, p, m = pre.structure, pre.p, pre.m
     # P-I: the floor column is the sum of the partial sums' columns, so a floor variable would be
     # redundant with them (S_j = floor + t_j already); Preisach: slope = floor.
-    ne = 0 if st.static == "pi" else 1
+    ne = 0 if st.static in ("pi", "duhem") else 1
     nx = p + ne + 2 * m + (1 if fit_offset else 0)
     q = p + m + 2
     t = np.zeros((q, nx))
@@ -505,6 +522,8 @@ def _design(pre: Prepared, margin: float, fit_offset: bool) -> tuple[FloatArray,
     shift[p] = margin
     lb = np.zeros(nx)
     ub = np.full(nx, np.inf)
+    if st.static == "duhem":
+        lb[st.size:p] = -np.inf  # F may take either sign; G's slack t_j >= 0
     if fit_offset:
         lb[-1] = -np.inf
     return t, shift, lb, ub, ne
@@ -576,6 +595,10 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
         d1 = ad1 * pre.decode_info["max_unit_slope"] + float(coef[p])
         static = BoucWenHysteresis(d1=d1, alpha=ad1 / d1, beta=st.shape[0], gamma=st.shape[1], offset=offset,
                                    v_range=pre.decode_info["v_range"])
+    elif st.static == "duhem":
+        k = st.size
+        static = GeneralizedDuhem(pre.decode_info["knots"], f=coef[k:2 * k], g=coef[:k] + coef[p], lam=st.shape[0],
+                                  offset=offset, v_range=pre.decode_info["v_range"])
     else:
         lo, hi_ = pre.decode_info["grid"]
         static = Preisach(lo=lo, hi=hi_, weights=np.maximum(tt, 0.0), slope=float(coef[p]), offset=offset)
@@ -595,6 +618,8 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
         slack = float(tt.min())
     elif st.static == "bouc-wen":
         slack = e
+    elif st.static == "duhem":
+        slack = float(tt[:st.size].min())
     else:  # inside the grid the diagonal (reversible) hysterons add to the slope
         ii, jj = np.tril_indices(st.size)
         lo, hi_ = pre.decode_info["grid"]

@@ -1,6 +1,7 @@
 """Model selection on held-out data: :func:`fit_model` (beyond the paper).
 
-Every candidate - a kind (P-I, asymmetric P-I, Preisach, rate-dependent wrappers, Bouc-Wen) and a
+Every candidate - a kind (P-I, asymmetric P-I, Preisach, Bouc-Wen hysteresis, generalised Duhem,
+rate-dependent wrappers, Bouc-Wen) and a
 structure (operators or grid levels, output-map knots, output lags, input lag, sensor delay) - is
 fitted on the earlier part of the training record and scored on what it never saw: the later
 part of the record (simulated from the record's start, so every model carries its memory into
@@ -14,7 +15,10 @@ the hold-out error by :data:`MIN_GAIN` to replace a simpler one):
 2. (after the lags) the delay and the input lag again around the best, since lags take part of
    what looked like delay;
 3. output lags: none, the rate-dependence band, rate and creep (then stage 2);
-4. the static kind and its size: P-I operators, asymmetric P-I output-map knots, Preisach levels;
+4. the static kind and its size: P-I operators, asymmetric P-I output-map knots, the Bouc-Wen
+   hysteresis's shape, the generalised Duhem model's relaxation rate and knots (a candidate whose
+   branches could rise by less than the margin over the states its range reaches is refused),
+   Preisach levels;
    when another kind or size won, the delay over its whole range again with it, with and without
    the lags (a plain P-I model that cannot follow the loop can pick a long delay for its misfit);
 5. Bouc-Wen (PSO) when the kind allows it and a sample period is known;
@@ -65,7 +69,8 @@ STATIC_KEPT = 4
 #: on every row).
 SEARCH_ROWS = 30000
 
-_LINEAR_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach", "bouc-wen-hysteresis")
+_LINEAR_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach", "bouc-wen-hysteresis",
+                 "generalized-duhem")
 
 
 @dataclass(frozen=True)
@@ -220,11 +225,20 @@ class _Scorer:
             score = float(np.sqrt(np.mean(e**2)))
             per = [score]
             fit_rmse = float("nan")
+        if st.static == "duhem" and not _duhem_invertible(model, self.margin):
+            score, per = math.inf, [math.inf] * len(per)  # its inverse's gain could exceed 1 / margin
         c = _Candidate(st, st.label(), st.kind, score, fit_rmse, int(info["n_parameters"]),
                        time.perf_counter() - t0, per)
         self.tried.append(c)
         self._done[st] = c
         return c
+
+
+def _duhem_invertible(model: Any, margin: float) -> bool:
+    """A generalised Duhem candidate (the least squares bound only ``G``): every branch over the
+    states its range reaches rises by at least ``margin`` (the other kinds hold it by construction)."""
+    static = getattr(model, "static", model)
+    return bool(model.is_invertible and static.min_slope >= margin)
 
 
 class _Blocks(OrderedDict):  # type: ignore[type-arg]
@@ -280,7 +294,7 @@ def fit_model(
     validation: Sequence[Any] | None = None, holdout: float | int = HOLDOUT, delay: int | str = "auto",
     n: int | None = None, kinds: Sequence[str] | None = None, margin: float | None = None,
     taus: Sequence[float] | None = None, input_taus: Sequence[float] | None = None,
-    max_delay: int | None = None, statics: Sequence[str] = ("pi", "preisach", "bouc-wen"),
+    max_delay: int | None = None, statics: Sequence[str] = ("pi", "preisach", "bouc-wen", "duhem"),
     seed: Any = 0, bouc_wen_options: dict[str, Any] | None = None,
     progress: Callable[[str], None] | None = None, warmup: int = 0,
 ) -> FitResult:
@@ -316,7 +330,7 @@ def fit_model(
     taus, input_taus, max_delay : optional
         Replace the data-derived output lags (one set, used as given), input-lag candidates and
         largest delay of the search.
-    statics : sequence of {"pi", "preisach", "bouc-wen"}
+    statics : sequence of {"pi", "preisach", "bouc-wen", "duhem"}
         The static parts the linear kinds may use.
     seed, bouc_wen_options
         For the Bouc-Wen candidate (PSO).
@@ -376,9 +390,10 @@ def fit_model(
             input_taus=ranges.input_taus if input_taus is None else tuple(float(t) for t in input_taus if t > 0),
             rate_taus=ranges.rate_taus if taus is None else tuple(float(t) for t in taus),
             creep_taus=ranges.creep_taus if taus is None else ())
-    bad = set(statics) - {"pi", "preisach", "bouc-wen"}
+    bad = set(statics) - {"pi", "preisach", "bouc-wen", "duhem"}
     if bad or not statics:
-        raise ValueError(f"statics must be a non-empty selection of 'pi', 'preisach' and 'bouc-wen', got {list(statics)}")
+        raise ValueError(f"statics must be a non-empty selection of 'pi', 'preisach', 'bouc-wen' and 'duhem', "
+                         f"got {list(statics)}")
     sc = _Scorer(us, ys, dt, n_fit, vsets, margin, warmup=prefix, stride=stride)
     linear = [k for k in allowed if k in _LINEAR_KINDS]
     best: _Candidate | None = None
@@ -389,6 +404,8 @@ def fit_model(
             base = Structure("pi", n or 20)
         elif "preisach" in statics and any(k in ("preisach", "rate-dependent") for k in linear):
             base = Structure("preisach", n or 12)
+        elif "generalized-duhem" in linear and "bouc-wen-hysteresis" not in linear:  # align with a mid-range rate
+            base = Structure("duhem", n or 8, shape=(2.0 / float(np.ptp(us[:n_fit])), 0.0))
         else:  # the Bouc-Wen hysteresis alone: align with a mid-range shape
             base = Structure("bouc-wen", 1, shape=(1.5 / float(np.ptp(us[:n_fit])), 0.0))
         # P-I thresholds over half the input's span (the operators that move in steady loops) or by
@@ -458,7 +475,8 @@ def _refit(prefix: FloatArray, u: FloatArray, y: FloatArray, dt: float | None, s
 
 def _complexity(st: Structure) -> int:
     """Number of free parameters a structure adds (to prefer the simpler of two close candidates)."""
-    size = {"pi": st.size, "preisach": st.size * (st.size + 1) // 2 + 2 * st.size, "bouc-wen": 3}[st.static]
+    size = {"pi": st.size, "preisach": st.size * (st.size + 1) // 2 + 2 * st.size, "bouc-wen": 3,
+            "duhem": 2 * st.size + 1}[st.static]
     return size + st.map_knots + len(st.taus) + (1 if st.input_tau else 0)
 
 
@@ -495,6 +513,8 @@ def _polish(sc: _Scorer, best: _Candidate, ranges: SearchRanges, delay: Any, lin
                       and (k or kind_name != "asymmetric-pi")]
         if st.static == "preisach" and not n:
             moves += [replace(st, size=s) for s in (8, 12, 16) if s != st.size]
+        if st.static == "duhem" and not n:
+            moves += [replace(st, size=s) for s in DUHEM_KNOTS if s != st.size and sc.n_fit >= 100 * s]
         improved = False
         for mv in moves:
             if not _allowed_structure(mv, linear, kind_name):
@@ -625,6 +645,9 @@ def _kind_stage(sc: _Scorer, best: _Candidate, linear: list[str], n: int | None,
     if "bouc-wen" in statics and ("bouc-wen-hysteresis" in linear or ("rate-dependent" in linear and st0.rate_dependent)):
         inc = _bouc_wen_shapes(sc, inc, st0, "bouc-wen-hysteresis" in linear, "rate-dependent" in linear,
                                force == "bouc-wen-hysteresis")
+    if "duhem" in statics and ("generalized-duhem" in linear or ("rate-dependent" in linear and st0.rate_dependent)):
+        inc = _duhem_shapes(sc, inc, st0, "generalized-duhem" in linear, "rate-dependent" in linear,
+                            force == "generalized-duhem", n)
     want_plain = "preisach" in linear and "preisach" in statics
     want_rate = "rate-dependent" in linear and st0.rate_dependent and "preisach" in statics
     if want_plain or want_rate:
@@ -672,6 +695,48 @@ def _bouc_wen_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain:
                 break
             best = nxt
         factor, step = math.sqrt(factor), 0.5 * step
+    if inc is None or force:
+        return best
+    return _prefer(inc, best)
+
+
+#: Knots of the generalised Duhem model's F and G the search tries (fewer first).
+DUHEM_KNOTS = (4, 8, 12)
+
+
+def _duhem_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bool, lagged: bool,
+                  force: bool, n: int | None) -> _Candidate:
+    """The generalised Duhem model with the stage's lags (or none): its relaxation rate on a grid
+    over the input's span (``lam span`` from 0.5 to 32 by factors of 2: a loop that relaxes over
+    twice the span to one that relaxes over 3 % of it), refined around the best by factors of
+    1.41 and 1.19, with 8 knots; then the knots (4, 8, 12; fewer must lose by :data:`MIN_GAIN`)."""
+    span = float(np.ptp(sc.u[: sc.n_fit]))
+    keep_rate = lagged and st0.rate_dependent
+    taus, itau = (st0.taus, st0.input_tau) if keep_rate else ((), 0.0)
+    if (not keep_rate and not plain) or not span > 0:
+        assert inc is not None
+        return inc
+    sizes = [n] if n else [k for k in DUHEM_KNOTS if sc.n_fit >= 100 * k]
+    if not sizes:
+        assert inc is not None
+        return inc
+    k0 = 8 if 8 in sizes else sizes[0]
+
+    def cand(ls: float, k: int) -> _Candidate:
+        st = Structure("duhem", k, 0, taus, itau, st0.delay, shape=(float(f"{ls:.9g}") / span, 0.0))
+        return sc.linear(st)
+
+    best = _best([cand(ls, k0) for ls in (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)])
+    for factor in (math.sqrt(2.0), 2.0 ** 0.25):
+        ls0 = best.structure.shape[0] * span
+        best = _best([best, cand(ls0 / factor, k0), cand(ls0 * factor, k0)])
+    ls0 = best.structure.shape[0] * span
+    for k in sorted(sizes):
+        if k != k0:
+            c = cand(ls0, k)
+            best = _prefer(best, c) if k > k0 else _choose(best, c)
+    if not math.isfinite(best.score):
+        return best if inc is None else inc
     if inc is None or force:
         return best
     return _prefer(inc, best)

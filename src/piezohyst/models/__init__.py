@@ -11,6 +11,7 @@ from .rate import RateDependent, RateDependentPI
 from .preisach import Preisach
 from .asymmetric_pi import AsymmetricPI, OutputMap
 from .bouc_wen_hysteresis import BoucWenHysteresis
+from .duhem import GeneralizedDuhem
 
 __all__ = [
     "AsymmetricPI",
@@ -18,6 +19,7 @@ __all__ = [
     "BoucWenHysteresis",
     "BoucWenStepper",
     "Compensator",
+    "GeneralizedDuhem",
     "HysteresisModel",
     "InversePIFeedforward",
     "OutputMap",

@@ -1,0 +1,141 @@
+"""The generalised (Coleman-Hodgdon) Duhem model: its laws, its identification and its selection.
+
+Reference values: a stage of the Duhem structure (the test zoo's Coleman-Hodgdon element,
+tests/plants/zoo.py, built from Coleman and Hodgdon's model) was the case the Preisach family
+could not fit: a Preisach fit that predicted its identification record within 0.6 % of span
+missed a loop over part of the range by 3 to 9 % (measured before this kind existed).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import piezohyst as ph
+from piezohyst.commissioning import commissioning_excitation
+from piezohyst.models.duhem import duhem_columns
+from tests.plants.zoo import ColemanHodgdon
+
+DT = 5e-4
+
+
+def _random_model(rng, k, lam_span, span=100.0, lo=0.0):
+    knots = np.sort(rng.uniform(lo, lo + span, k))
+    knots[0], knots[-1] = lo, lo + span
+    knots = np.unique(knots)
+    lam = lam_span / span
+    g = rng.uniform(0.5, 1.5, knots.size) * 0.01
+    f = rng.uniform(-1.0, 1.0, knots.size) * 0.5 * lam * 0.01 / lam  # |F| well below G
+    return ph.GeneralizedDuhem(knots, f=f, g=g, lam=lam, offset=float(rng.normal()))
+
+
+def _walk(rng, n, lo, hi):
+    return np.clip(0.5 * (lo + hi) + np.cumsum(rng.normal(0.0, 0.02 * (hi - lo), n)), lo, hi)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), k=st.integers(2, 10), lam_span=st.floats(0.3, 40.0), stride=st.integers(1, 4))
+def test_the_output_is_linear_in_f_and_g(seed, k, lam_span, stride):
+    """For a fixed ``lam`` the output is the regressors times the knot values of G and F: the
+    identification's least squares and the model's simulation compute the same numbers."""
+    rng = np.random.default_rng(seed)
+    m = _random_model(rng, k, lam_span)
+    u = np.concatenate([[0.0], _walk(rng, 3000, -10.0, 110.0)])
+    cols = duhem_columns(u, m.knots, m.lam, stride)
+    pred = cols @ np.concatenate([m.g, m.f]) + m.offset
+    y = m.simulate(u)[::stride]
+    assert np.allclose(pred, y, rtol=1e-10, atol=1e-10 * np.abs(y).max())
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), k=st.integers(2, 8), lam_span=st.floats(0.3, 20.0), bipolar=st.booleans())
+def test_min_slope_bounds_every_branch_an_input_in_the_range_takes(seed, k, lam_span, bipolar):
+    """``min_slope`` is a lower bound of ``dy/dv`` on every branch that an input within ``v_range``
+    takes from rest (random reversals, then full sweeps)."""
+    rng = np.random.default_rng(seed)
+    lo = -40.0 if bipolar else 0.0
+    m = _random_model(rng, k, lam_span, span=100.0 - lo, lo=lo)
+    a, b = m.v_range
+    turns = np.concatenate([[0.0], rng.uniform(a, b, 30), [a, b, a, b]])
+    v = np.concatenate([np.linspace(p, q, 300) for p, q in zip(turns[:-1], turns[1:])])
+    dv, dy = np.diff(v), np.diff(m.simulate(v))
+    moving = np.abs(dv) > 1e-9
+    assert (dy[moving] / dv[moving]).min() >= m.min_slope - 1e-9 * abs(m.min_slope)
+
+
+def test_a_model_falling_after_reversals_is_not_invertible_and_refused():
+    """F far above G: just after a reversal the output goes on the other way; the model says so
+    and refuses to build an inverse, rather than inverting a non-monotone branch."""
+    k = np.linspace(0.0, 100.0, 3)
+    m = ph.GeneralizedDuhem(k, f=[0.05, 0.05, 0.05], g=[0.01, 0.01, 0.01], lam=0.05)
+    assert m.min_slope < 0 and not m.is_invertible
+    with pytest.raises(ValueError, match="not invertible"):
+        m.compensator()
+
+
+def test_identification_recovers_a_duhem_model():
+    """Data from a model whose knots and relaxation rate the search can represent (knots evenly
+    over the record's range, ``lam span = 4`` on the search grid): the fit is that model."""
+    rng = np.random.default_rng(5)
+    knots = np.linspace(0.0, 100.0, 8)
+    true = ph.GeneralizedDuhem(knots, f=0.04 * 0.5 * np.tanh(knots / 70.0) + rng.uniform(-1e-3, 1e-3, 8),
+                               g=0.008 * (1.0 - 0.3 * (knots / 100.0) ** 2), lam=0.04, offset=0.1)
+    u = commissioning_excitation(DT, (0.0, 100.0))
+    y = true.simulate(u)
+    fit = ph.fit_model(u, y, DT, kind="generalized-duhem", delay=0)
+    m = fit.model
+    assert isinstance(m, ph.GeneralizedDuhem), fit.info["chosen"]
+    assert m.lam == pytest.approx(0.04, rel=1e-9)
+    assert m.knots.size == 8
+    assert np.allclose(m.g, true.g, atol=1e-7) and np.allclose(m.f, true.f, atol=1e-7)
+    assert fit.info["holdout"]["percent_of_span"] < 1e-4
+
+
+@pytest.fixture(scope="module")
+def coleman_record():
+    el = ColemanHodgdon(100.0, 20.0)
+
+    def run(u):
+        el.reset()
+        return np.array([el.step(float(x)) for x in u])
+
+    u = commissioning_excitation(DT, (0.0, 100.0))
+    return u, run(u), run
+
+
+@pytest.mark.parametrize("kind", ["generalized-duhem", "auto"])
+def test_a_coleman_hodgdon_stage_is_fitted_and_compensated(coleman_record, kind):
+    """The zoo's Duhem element (its own integrator, not this model's): automatic selection picks
+    the generalised Duhem model, which predicts loops over parts of the range it was never driven
+    over alone, and its compensator tracks a sinusoid over the middle 80 % of the output."""
+    u, y, run = coleman_record
+    fit = ph.fit_model(u, y, DT, kind=kind, delay=0)
+    assert fit.model.kind in ("generalized-duhem", "rate-dependent"), fit.info["chosen"]
+    assert "generalized Duhem" in fit.info["chosen"]
+    assert fit.info["holdout"]["percent_of_span"] < 0.1
+    for lo, hi in ((6.8, 86.9), (20.0, 60.0), (0.0, 100.0)):
+        v = np.concatenate([np.linspace(0.0, lo, 500), ph.sinusoid(1.0, 2, lo, hi, DT)])
+        yt, ym = run(v), fit.model.predict(v, DT)
+        s = slice(500 + int(1.0 / DT), None)
+        assert np.abs(yt[s] - ym[s]).max() < 0.005 * np.ptp(yt[s]), (lo, hi)
+    a, b = np.percentile(y, 10), np.percentile(y, 90)
+    x_d = ph.sinusoid(1.0, 3, a, b, DT)
+    cmd = fit.model.compensator(DT).command(x_d)
+    s = slice(int(1.0 / DT), None)
+    assert np.abs(run(cmd)[s] - x_d[s]).max() < 0.005 * (b - a)
+
+
+def test_candidates_that_could_fall_after_a_reversal_are_refused():
+    """The least squares bounds only G; a candidate whose branches could fall (or rise by less than
+    the margin) over the states its range reaches scores infinity and is never chosen."""
+    from piezohyst.identify.select import _duhem_invertible
+
+    k = np.linspace(0.0, 100.0, 3)
+    # F = 0, G = 0.01, lam = 0.001/V: the highest state over 0..100 V is the first rise from rest,
+    # y = (G / lam)(1 - exp(-0.1)) at 100 V, where the rising slope is G - lam y = G exp(-0.1)
+    good = ph.GeneralizedDuhem(k, f=[0.0, 0.0, 0.0], g=[0.01, 0.01, 0.01], lam=0.1 / 100.0)
+    assert good.min_slope == pytest.approx(0.01 * np.exp(-0.1), rel=1e-4)
+    assert _duhem_invertible(good, 0.005) and not _duhem_invertible(good, 0.02)
+    assert not _duhem_invertible(ph.GeneralizedDuhem(k, f=[0.05] * 3, g=[0.01] * 3, lam=0.05), 0.0)
