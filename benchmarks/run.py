@@ -993,6 +993,8 @@ _try(lambda: ph.track(rig, ph.sinusoid(5.0, 1, 0.3, 2.2, rig.dt), feedforward=ph
                       feedback=ph.PID(ki=100.0, dt=rig.dt)))                    # the paper's loop, compiled
 _try(lambda: ph.fit_model(u, yp, dt, kind="preisach", delay=0))                # Preisach design
 _try(lambda: ph.fit_model(u, bw.hysteresis(u), dt, kind="bouc-wen-hysteresis", delay=0))
+_try(lambda: ph.fit_model(u, bw.hysteresis(u), dt, kind="generalized-duhem", delay=0).model.compensator()
+      .command(bw.hysteresis(u)[:200]))                                         # Duhem design, band, inverse
 _try(lambda: ph.commission(ph.VirtualRig(seed=0)).track(ph.sinusoid(5.0, 2, 0.3, 2.2, 1e-4)))  # compiled loops, guard
 elapsed = time.perf_counter() - t0
 for m in pkgutil.walk_packages(ph.__path__, "piezohyst."):
@@ -1038,7 +1040,7 @@ def compile_cost(b: Bench) -> None:
           note=(f"import and one call of every public path (simulate both ways, operator_outputs, pi_gram, steppers, "
                 f"rig, fit_bouc_wen, fit_rate_pi, feedforwards, structural Bouc-Wen and its sensitivities, fit_pi "
                 f"by least squares, by PSO and at every delay, Preisach simulate, inverse and hysterons, fit_model of "
-                f"Preisach and Bouc-Wen hysteresis models, the paper's PID loop, commission and track on the "
+                f"Preisach, Bouc-Wen hysteresis and generalized Duhem models (and a Duhem inverse), the paper's PID loop, commission and track on the "
                 f"VirtualRig) in a fresh process with "
                 f"NUMBA_CACHE_DIR at an empty temporary directory; {len(kernels) - len(missed)} of {len(kernels)} "
                 f"kernels compiled" + (f"; not exercised: {', '.join(missed)}" if missed else "")),

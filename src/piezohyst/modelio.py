@@ -43,8 +43,12 @@ SCHEMA_NAME = "piezohyst.model"
 #: that dropped it would invert a model that is invertible only within it, so older readers refuse
 #: version 3 files. Versions 1 and 2 load unchanged. A file is written with the oldest version
 #: that holds what it carries (:func:`schema_version_for`): a model without an operating range is
-#: a version 2 file, which piezohyst 0.2 reads too.
-SCHEMA_VERSION = 3
+#: a version 2 file, which piezohyst 0.2 reads too. Version 4: the generalized Duhem kind (a
+#: version 3 reader would call it an unknown kind; it says "written by a newer piezohyst" instead).
+SCHEMA_VERSION = 4
+#: The schema version that introduced each kind after version 2 (a file holding one, at any depth,
+#: carries at least that version).
+KIND_SINCE = {"generalized-duhem": 4}
 #: Deepest nesting a model file may have (wrappers hold models; nothing legitimate nests deeper).
 MAX_DEPTH = 32
 
@@ -76,7 +80,7 @@ def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
     if units:
         unit.update(units)
     doc: dict[str, Any] = {
-        "schema": f"{SCHEMA_NAME}/{schema_version_for(model.to_dict())}",
+        "schema": f"{SCHEMA_NAME}/{schema_version_for(model.to_dict(), kind)}",
         "kind": kind,
         "producer": producer(),
         "units": unit,
@@ -93,13 +97,18 @@ def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
     return _clean(doc)
 
 
-def schema_version_for(params: Any) -> int:
-    """The oldest schema version that holds ``params`` (a model's ``to_dict()``): 3 where some
+def schema_version_for(params: Any, kind: str | None = None) -> int:
+    """The oldest schema version that holds ``params`` (a model's ``to_dict()``, of ``kind``): the
+    version that introduced a kind it holds (:data:`KIND_SINCE`, nested ones too), 3 where some
     part carries an operating range (``v_range``), else 2."""
+    since = KIND_SINCE.get(kind, 2) if kind is not None else 2
     if isinstance(params, dict):
+        nested = params.get("kind")
+        if isinstance(nested, str):
+            since = max(since, KIND_SINCE.get(nested, 2))
         if params.get("v_range") is not None:
-            return 3
-        return max((schema_version_for(v) for v in params.values()), default=2)
+            since = max(since, 3)
+        return max([since, *(schema_version_for(v) for v in params.values())])
     if isinstance(params, (list, tuple)):
         return max((schema_version_for(v) for v in params), default=2)
     return 2
