@@ -40,7 +40,8 @@ def row(stage) -> str:  # noqa: ANN001 - a zoo Stage
             fbl.append(float("nan"))
     name = stage.name.split(",")[0]
     st = ctl.fit.info.get("structure", {})
-    kind = {"pi": "P-I", "preisach": f"Preisach {st.get('size')}", "bouc-wen": "Bouc-Wen hysteresis"}.get(
+    kind = {"pi": "P-I", "preisach": f"Preisach {st.get('size')}", "bouc-wen": "Bouc-Wen hysteresis",
+            "duhem": f"generalized Duhem {st.get('size')}"}.get(
         st.get("static"), ctl.model.kind)
     if st.get("map_knots"):
         kind = "asymmetric P-I"
