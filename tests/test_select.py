@@ -194,3 +194,27 @@ def test_warmup_is_checked():
     y = 0.2 * u
     with pytest.raises(ValueError, match="warmup"):
         ph.fit_model(u, y, DT, kind="pi", warmup=u.size)
+
+
+def test_an_output_that_dwells_on_one_value_still_gets_output_maps():
+    """A noise-free stage with a dead zone rests at exactly the same output for a third of the
+    record: two quantiles of the output coincide. The map's knots come from the distinct values
+    then (commission() had stopped with "too few distinct values" on such a stage)."""
+    from piezohyst.identify.linear import map_knots_for
+
+    dt = 1e-3
+    u = ph.sinusoid(1.0, 6, -50.0, 100.0, dt) * np.linspace(1.0, 0.6, 6000)
+    pi = ph.PrandtlIshlinskii(np.arange(6) / 6 * 60.0, np.full(6, 0.004))
+    h = pi.simulate(u)
+    y = np.maximum(h - np.quantile(h, 0.4), 0.0)  # a dead zone of the output: 40 % of the samples at 0
+    assert np.mean(y == 0.0) >= 0.4
+    knots, centre = map_knots_for(y, 8)
+    assert knots.size == 8 and np.all(np.diff(knots) > 0) and knots[0] >= y.min()
+    # where the quantiles are distinct the knots are what they always were
+    noisy = y + np.random.default_rng(0).normal(0.0, 1e-6, y.size)
+    assert np.array_equal(map_knots_for(noisy, 8)[0], np.quantile(noisy, np.arange(1, 9) / 9))
+    fit = ph.fit_model(u, y, dt, kind="asymmetric-pi", delay=0)
+    assert fit.model.kind == "asymmetric-pi"
+    # a flat output is beyond the map's slope bound (its inverse's slope is bounded): a rough fit,
+    # but a fit (7.8 % of span measured), where the search had stopped with an error
+    assert fit.info["holdout"]["percent_of_span"] < 15.0

@@ -458,9 +458,15 @@ def _decode_map(tau: FloatArray, knots: FloatArray, centre: float) -> OutputMap:
 
 
 def map_knots_for(y: FloatArray, count: int) -> tuple[FloatArray, float]:
-    """Knots at the quantiles ``i / (count + 1)`` of ``y`` and the centre between the middle two."""
-    q = np.quantile(y, np.arange(1, count + 1) / (count + 1))
-    q = np.unique(q)
+    """Knots at the quantiles ``i / (count + 1)`` of ``y`` and the centre between the middle two.
+
+    Where the output dwells on one value (a noise-free stage's dead zone or saturation, a
+    coarsely quantised sensor) two quantiles can coincide: the knots are then the quantiles of
+    the distinct values the output takes."""
+    levels = np.arange(1, count + 1) / (count + 1)
+    q = np.unique(np.quantile(y, levels))
+    if q.size != count:
+        q = np.unique(np.quantile(np.unique(y), levels))
     if q.size != count:
         raise ValueError("the output takes too few distinct values for an output map")
     centre = 0.5 * (q[count // 2 - 1] + q[count // 2])

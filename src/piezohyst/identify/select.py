@@ -54,7 +54,8 @@ from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
 from ..models.play import play_operator
-from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
+from .linear import (DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, map_knots_for, mean_slope,
+                     prepare)
 from .result import FitResult, paired_signals, unpack_data
 
 #: Relative drop of the hold-out error a more complex candidate must bring to be preferred.
@@ -211,6 +212,14 @@ class _Scorer:
         pre = self._prepared(replace(st, delay=0))
         t0 = time.perf_counter()
         d, n = st.delay, self.u.size
+        if st.map_knots:
+            try:  # an output that dwells on a few values (a noise-free dead zone) may not hold the knots
+                map_knots_for(self.y[d:self.n_fit:pre.stride], st.map_knots)
+            except ValueError:
+                c = _Candidate(st, st.label(), st.kind, math.inf, float("nan"), 0, 0.0, [math.inf])
+                self.tried.append(c)
+                self._done[st] = c
+                return c
         if self.validation:
             model, info, _ = fit_prepared(pre, self.y[d:self.n_fit], self.n_fit - d, self.dt, margin=self.margin,
                                           predict=(0, 1))
