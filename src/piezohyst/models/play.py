@@ -67,64 +67,22 @@ def _pi_dense_into(
         y[k] = pi_step(u[k], r, w, z, in_off, out_off)
 
 
-# The dense loop of the automatic choice. Its cost is the chain of dependent clamps through each
-# operator's state, sample after sample, so four samples are taken at once: clamps compose into
-# clamps, clamp(clamp(z, l1, h1), l2, h2) = clamp(z, clamp(l1, l2, h2), clamp(h1, l2, h2)), so
-# the states after 1..4 samples all follow from the state before them by one clamp each (exact:
-# only min and max), and the chain is a quarter as long. That costs more operations per sample,
-# which pays while there are few operators (the chain dominates); with many, the plain loop is
-# faster. The weighted sum of eq. (3) may be reassociated (vectorised over the operators): the
-# outputs differ from pi_step's strict left-to-right sum by rounding only, and that rounding is
-# the optimiser's (a process that compiled the kernel and one that loaded it from numba's cache
-# can differ in the last bits; strictly ordered, this loop was 3x slower). The fits' sums below
-# are strictly ordered: a fit is the same in every process.
-_FOUR_AT_ONCE = 32  # up to this many operators, four samples at once (measured: see the comment)
-
-
+# The dense loop of the automatic choice: the weighted sum of eq. (3) may be reassociated
+# (vectorised over the operators), so the outputs differ from pi_step's strict left-to-right sum
+# by rounding only, and that rounding is the optimiser's (a process that compiled the kernel and
+# one that loaded it from numba's cache can differ in the last bits; strictly ordered, this loop
+# was 3x slower). The fits' sums below are strictly ordered: a fit is the same in every process.
+# (It took four samples at once for up to 32 operators until 2026-11-26, composing four clamps
+# into one to shorten the dependency chain; measured on this machine's AMD EPYC, 10^6 samples of
+# white noise, that was the slower loop: 5 operators 5.49 -> 4.57 ms, 20 operators 9.34 -> 4.95 ms
+# with the plain loop, against 6.47 ms for gcc -O3 -ffast-math, benchmarks/run.py pi-white-*.)
 @njit_fast({"reassoc", "contract", "nsz"})
 def _pi_dense_fast_into(
     u: FloatArray, r: FloatArray, w: FloatArray, z: FloatArray, in_off: float, out_off: float,
     y: FloatArray, k0: int, k1: int,
 ) -> None:  # pragma: no cover - compiled
     m = r.shape[0]
-    k = k0
-    if m <= _FOUR_AT_ONCE:
-        while k + 4 <= k1:
-            x0 = u[k] - in_off
-            x1 = u[k + 1] - in_off
-            x2 = u[k + 2] - in_off
-            x3 = u[k + 3] - in_off
-            a0 = a1 = a2 = a3 = 0.0
-            for i in range(m):
-                ri = r[i]
-                wi = w[i]
-                l0 = x0 - ri
-                h0 = x0 + ri
-                l1 = x1 - ri
-                h1 = x1 + ri
-                l2 = x2 - ri
-                h2 = x2 + ri
-                l3 = x3 - ri
-                h3 = x3 + ri
-                lo1 = min(max(l0, l1), h1)  # the bounds of two, three, four clamps in a row
-                hi1 = min(max(h0, l1), h1)
-                lo2 = min(max(lo1, l2), h2)
-                hi2 = min(max(hi1, l2), h2)
-                lo3 = min(max(lo2, l3), h3)
-                hi3 = min(max(hi2, l3), h3)
-                zi = z[i]
-                z3 = min(max(zi, lo3), hi3)
-                a0 += wi * min(max(zi, l0), h0)
-                a1 += wi * min(max(zi, lo1), hi1)
-                a2 += wi * min(max(zi, lo2), hi2)
-                a3 += wi * z3
-                z[i] = z3
-            y[k] = a0 + out_off
-            y[k + 1] = a1 + out_off
-            y[k + 2] = a2 + out_off
-            y[k + 3] = a3 + out_off
-            k += 4
-    for q in range(k, k1):
+    for q in range(k0, k1):
         xs = u[q] - in_off
         acc = 0.0
         for i in range(m):
