@@ -993,8 +993,8 @@ _try(lambda: ph.track(rig, ph.sinusoid(5.0, 1, 0.3, 2.2, rig.dt), feedforward=ph
                       feedback=ph.PID(ki=100.0, dt=rig.dt)))                    # the paper's loop, compiled
 _try(lambda: ph.fit_model(u, yp, dt, kind="preisach", delay=0))                # Preisach design
 _try(lambda: ph.fit_model(u, bw.hysteresis(u), dt, kind="bouc-wen-hysteresis", delay=0))
-_try(lambda: ph.fit_model(u, bw.hysteresis(u), dt, kind="generalized-duhem", delay=0).model.compensator()
-      .command(bw.hysteresis(u)[:200]))                                         # Duhem design, band, inverse
+_try(lambda: ph.fit_model(u, 1e6 * (bw.d1 * u - bw.hysteresis(u)), dt, kind="generalized-duhem", delay=0)
+      .model.compensator().command(1e6 * (bw.d1 * u - bw.hysteresis(u))[:200]))  # Duhem design, band, inverse
 _try(lambda: ph.commission(ph.VirtualRig(seed=0)).track(ph.sinusoid(5.0, 2, 0.3, 2.2, 1e-4)))  # compiled loops, guard
 elapsed = time.perf_counter() - t0
 for m in pkgutil.walk_packages(ph.__path__, "piezohyst."):

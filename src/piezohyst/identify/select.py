@@ -435,21 +435,32 @@ def fit_model(
     # refit the winner on the whole training record
     say("refit on the whole record")
     refused: list[str] = []
+    flat: list[str] = []
     if isinstance(best.structure, Structure):
         final, _ = _refit(prefix, us, ys, dt, best.structure, margin)
-        if dt is not None:
-            # the compensator must stay smooth: a candidate whose inverse chatters is passed over
-            # for the next best (module docstring, "inverses that never chatter")
-            order = sorted((c for c in sc.tried if isinstance(c.structure, Structure) and c is not best),
-                           key=lambda c: c.score)
-            # after the runners-up, the best rate-independent candidate: with no lags to invert,
-            # its command follows the reference's turns and no others (a monotone inverse)
-            static = [c for c in order if not c.structure.taus and not c.structure.input_tau]
-            queue = order[:CHATTER_RETRIES] + [c for c in static if c not in order[:CHATTER_RETRIES]][:1]
-            while _chatters(final.model, dt, ys, ranges) and queue:
+        # the compensator must exist and stay smooth: a refitted generalized Duhem model whose
+        # branches could rise by less than the margin, or a candidate whose inverse chatters, is
+        # passed over for the next best (module docstring, "inverses that never chatter")
+        order = sorted((c for c in sc.tried if isinstance(c.structure, Structure) and c is not best
+                        and math.isfinite(c.score)), key=lambda c: c.score)
+        # after the runners-up, the best rate-independent candidate: with no lags to invert,
+        # its command follows the reference's turns and no others (a monotone inverse)
+        static = [c for c in order if not c.structure.taus and not c.structure.input_tau]
+        queue = order[:CHATTER_RETRIES] + [c for c in static if c not in order[:CHATTER_RETRIES]][:1]
+        while queue:
+            if best.structure.static == "duhem" and not _duhem_invertible(final.model, margin):
+                flat.append(best.label)
+            elif dt is not None and _chatters(final.model, dt, ys, ranges):
                 refused.append(best.label)
-                best = queue.pop(0)
-                final, _ = _refit(prefix, us, ys, dt, best.structure, margin)
+            else:
+                break
+            best = queue.pop(0)
+            final, _ = _refit(prefix, us, ys, dt, best.structure, margin)
+        if best.structure.static == "duhem" and not _duhem_invertible(final.model, margin):
+            raise ValueError(f"no generalized Duhem model with rising branches fits these data: the best one's "
+                             f"smallest branch slope is {getattr(final.model, 'static', final.model).min_slope:.3g} "
+                             f"(margin {margin:.3g}); its loop saturates or falls after reversals where this kind "
+                             f"cannot follow it. Try kind='auto' (--model auto)")
     else:
         final = _fit_bouc_wen(us, ys, dt, best.structure[1], seed, bouc_wen_options)  # type: ignore[arg-type]
     span = float(np.ptp(ys))
@@ -464,6 +475,8 @@ def fit_model(
     final.info["search"] = ranges.to_dict()
     if refused:
         final.info["refused_for_chatter"] = refused
+    if flat:
+        final.info["refused_not_invertible"] = flat
     final.info["chosen"] = best.label
     final.method = f"selection on held-out data: {best.label}"
     final.warnings = _quality_warnings(final, us, ys, dt, best, span, vsets, n_fit, sc) + final.warnings
@@ -712,6 +725,10 @@ def _bouc_wen_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain:
 
 #: Knots of the generalised Duhem model's F and G the search tries (fewer first).
 DUHEM_KNOTS = (4, 8, 12)
+#: Factors by which the search refines the Duhem model's rate around the best, in turn: down to
+#: 2 % (a rate between grid points shifts every branch's slope, and the least squares then bends F
+#: and G to make up for it, down to branches as flat as the margin allows).
+DUHEM_RATE_STEPS = tuple(2.0 ** (1.0 / 2 ** k) for k in range(1, 6))
 
 
 def _duhem_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bool, lagged: bool,
@@ -722,7 +739,8 @@ def _duhem_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bo
     over ``0..max_delay`` again for the best (the stages before aligned it with a P-I model, and
     where that model cannot follow a Duhem loop a long delay stands in for its misfit: measured 31
     samples against 22 for the Duhem model on a bipolar Coleman-Hodgdon stage); then the rate
-    refined around the best by factors of 1.41 and 1.19, and the knots (4, 8, 12; fewer must lose
+    refined around the best by factors of 1.41, 1.19, ..., 1.02 (:data:`DUHEM_RATE_STEPS`), and
+    the knots (4, 8, 12; fewer must lose
     by :data:`MIN_GAIN`). The rate and the delay trade against each other, so the delay search
     and the grid of rates alternate twice."""
     span = float(np.ptp(sc.u[: sc.n_fit]))
@@ -750,7 +768,7 @@ def _duhem_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bo
                 break
             best = _best([best, _delay_search(sc, best.structure, 0, max_delay)])
             best = _best([best, *(cand(ls, k0, best.structure.delay) for ls in grid)])
-    for factor in (math.sqrt(2.0), 2.0 ** 0.25):
+    for factor in DUHEM_RATE_STEPS:
         ls0, d0 = best.structure.shape[0] * span, best.structure.delay
         best = _best([best, cand(ls0 / factor, k0, d0), cand(ls0 * factor, k0, d0)])
     ls0 = best.structure.shape[0] * span

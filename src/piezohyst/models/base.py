@@ -285,3 +285,68 @@ class InverseCompensator(Compensator):
 
     def to_c(self, c: Any, prefix: str) -> str:
         return self._inv.to_c(c, prefix)
+
+
+def c_bracketed_solve(c: Any, fn: str, comment: str, *, prologue: str, f0: str, f_at: Callable[[str], str],
+                      s_min: str, steps: int, v_range: tuple[str, str] | None, epilogue: str) -> None:
+    """Add to ``c`` the C99 function ``double fn(double target)`` of the numerical inverses
+    (Bouc-Wen hysteresis, generalized Duhem), operation for operation as their compiled Python
+    solvers: the residual ``f0`` at the last command ``v_prev`` (declared by ``prologue``), the
+    bracket ``[v_prev, v_prev - f0 / s_min]`` (clamped to ``v_range``, where a target beyond what
+    the range reaches gives its end), ``steps`` halvings of it on the residual ``f_at(x)`` (C
+    code of the residual at ``x``), one secant step inside the last bracket, then ``epilogue``
+    (the state update) and ``return v``."""
+    if v_range is None:
+        clamp = f"        fb = {f_at('b')};\n"
+    else:
+        lo, hi = v_range
+        clamp = (f"        int clamped = 0;\n"
+                 f"        if (b > {hi}) {{ b = {hi}; clamped = 1; }} else if (b < {lo}) {{ b = {lo}; clamped = 1; }}\n"
+                 f"        fb = {f_at('b')};\n"
+                 f"        if (clamped && fb * f0 >= 0.0) {{ v = b; done = 1; }}\n")
+    c.function(f"""/* {comment} */
+static double {fn}(double target)
+{{
+{prologue}
+    const double f0 = {f0};
+    double v;
+    if (f0 == 0.0) {{
+        v = v_prev;
+    }} else {{
+        double a = v_prev;
+        double b = v_prev - f0 / {s_min};
+        double fa = f0;
+        double fb;
+        int it;
+        int done = 0;
+{clamp}        if (fa > 0.0) {{
+            double t = a; a = b; b = t;
+            t = fa; fa = fb; fb = t;
+        }}
+        for (it = 0; {"" if v_range is None else "!done && "}it < {steps}; ++it) {{
+            const double mid = 0.5 * (a + b);
+            const double fm = {f_at("mid")};
+            if (fm == 0.0) {{
+                v = mid;
+                done = 1;
+                break;
+            }}
+            if (fm < 0.0) {{
+                a = mid; fa = fm;
+            }} else {{
+                b = mid; fb = fm;
+            }}
+        }}
+        if (!done) {{
+            v = 0.5 * (a + b);
+            if (fb != fa) {{
+                const double lo = (b < a) ? b : a;
+                const double hi = (b > a) ? b : a;
+                const double sec = a - fa * (b - a) / (fb - fa);
+                if (sec >= lo && sec <= hi) v = sec;
+            }}
+        }}
+    }}
+{epilogue}
+    return v;
+}}""")

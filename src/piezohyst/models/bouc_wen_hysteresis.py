@@ -43,7 +43,7 @@ import numpy as np
 
 from .._numba import njit
 from .._validation import FloatArray, as_scalar, as_signal
-from .base import InverseCompensator, check_dt, register_kind
+from .base import InverseCompensator, c_bracketed_solve, check_dt, register_kind
 from .bouc_wen import bw_h_update, bw_hysteresis
 
 #: Halvings of the inverse's bracket before the final secant step.
@@ -350,63 +350,14 @@ class BoucWenHysteresisInverse:
         d1x, ad1 = c.num(m.d1 + self.kappa), c.num(m.alpha * m.d1)
         beta, gamma, off, smin = c.num(m.beta), c.num(m.gamma), c.num(m.offset), c.num(self._s)
         fn = c.name(f"{prefix}_solve")
-        f = f"{off} + {d1x} * %s - {upd}(h_prev, %s - v_prev, {ad1}, {beta}, {gamma}) - target"
-        if m.v_range is None:
-            clamp = f"        fb = {f % ('b', 'b')};\n"
-        else:  # the input stays in the operating range (_bwh_solve's v_lo, v_hi)
-            lo, hi = c.num(m.v_range[0]), c.num(m.v_range[1])
-            clamp = (f"        int clamped = 0;\n"
-                     f"        if (b > {hi}) {{ b = {hi}; clamped = 1; }} else if (b < {lo}) {{ b = {lo}; clamped = 1; }}\n"
-                     f"        fb = {f % ('b', 'b')};\n"
-                     f"        if (clamped && fb * f0 >= 0.0) {{ v = b; done = 1; }}\n")
-        c.function(f"""/* Bouc-Wen hysteresis, numerical inverse: bisection ({BISECTION_STEPS} halvings), one secant step */
-static double {fn}(double target)
-{{
-    const double v_prev = {vv};
-    const double h_prev = {hh};
-    const double f0 = {off} + {d1x} * v_prev - h_prev - target;
-    double v;
-    if (f0 == 0.0) {{
-        v = v_prev;
-    }} else {{
-        double a = v_prev;
-        double b = v_prev - f0 / {smin};
-        double fa = f0;
-        double fb;
-        int it;
-        int done = 0;
-{clamp}        if (fa > 0.0) {{
-            double t = a; a = b; b = t;
-            t = fa; fa = fb; fb = t;
-        }}
-        for (it = 0; {"" if m.v_range is None else "!done && "}it < {BISECTION_STEPS}; ++it) {{
-            const double mid = 0.5 * (a + b);
-            const double fm = {f % ("mid", "mid")};
-            if (fm == 0.0) {{
-                v = mid;
-                done = 1;
-                break;
-            }}
-            if (fm < 0.0) {{
-                a = mid; fa = fm;
-            }} else {{
-                b = mid; fb = fm;
-            }}
-        }}
-        if (!done) {{
-            v = 0.5 * (a + b);
-            if (fb != fa) {{
-                const double lo = (b < a) ? b : a;
-                const double hi = (b > a) ? b : a;
-                const double sec = a - fa * (b - a) / (fb - fa);
-                if (sec >= lo && sec <= hi) v = sec;
-            }}
-        }}
-    }}
-    {hh} = {upd}(h_prev, v - v_prev, {ad1}, {beta}, {gamma});
-    {vv} = v;
-    return v;
-}}""")
+        c_bracketed_solve(
+            c, fn, f"Bouc-Wen hysteresis, numerical inverse: bisection ({BISECTION_STEPS} halvings), one secant step",
+            prologue=f"    const double v_prev = {vv};\n    const double h_prev = {hh};",
+            f0=f"{off} + {d1x} * v_prev - h_prev - target",
+            f_at=lambda x: f"{off} + {d1x} * {x} - {upd}(h_prev, {x} - v_prev, {ad1}, {beta}, {gamma}) - target",
+            s_min=smin, steps=BISECTION_STEPS,
+            v_range=None if m.v_range is None else (c.num(m.v_range[0]), c.num(m.v_range[1])),
+            epilogue=f"    {hh} = {upd}(h_prev, v - v_prev, {ad1}, {beta}, {gamma});\n    {vv} = v;")
         return fn
 
 

@@ -48,7 +48,7 @@ import numpy as np
 
 from .._numba import njit
 from .._validation import FloatArray, as_scalar, as_signal, frozen
-from .base import InverseCompensator, check_dt, register_kind
+from .base import InverseCompensator, c_bracketed_solve, check_dt, register_kind
 
 #: Halvings of the inverse's bracket before the final secant step.
 BISECTION_STEPS = 60
@@ -59,13 +59,14 @@ SUBSTEPS_PER_INTERVAL = 4
 
 
 @njit
-def _interp(x: float, knots: FloatArray, vals: FloatArray) -> float:  # pragma: no cover - compiled
-    """The piecewise-linear function through ``(knots, vals)``, constant beyond the ends."""
+def _segment(x: float, knots: FloatArray) -> tuple[int, int, float]:  # pragma: no cover - compiled
+    """``(lo, hi, w)``: ``x`` lies a fraction ``w`` of the way from knot ``lo`` to knot ``hi``
+    (``lo == hi``, ``w = 0`` beyond the ends, where F and G are held constant)."""
     k = knots.shape[0]
     if x <= knots[0]:
-        return vals[0]
+        return 0, 0, 0.0
     if x >= knots[k - 1]:
-        return vals[k - 1]
+        return k - 1, k - 1, 0.0
     lo = 0
     hi = k - 1
     while hi - lo > 1:
@@ -74,7 +75,15 @@ def _interp(x: float, knots: FloatArray, vals: FloatArray) -> float:  # pragma: 
             lo = mid
         else:
             hi = mid
-    w = (x - knots[lo]) / (knots[hi] - knots[lo])
+    return lo, hi, (x - knots[lo]) / (knots[hi] - knots[lo])
+
+
+@njit
+def _interp(x: float, knots: FloatArray, vals: FloatArray) -> float:  # pragma: no cover - compiled
+    """The piecewise-linear function through ``(knots, vals)``, constant beyond the ends."""
+    lo, hi, w = _segment(x, knots)
+    if lo == hi:
+        return vals[lo]
     return vals[lo] + w * (vals[hi] - vals[lo])
 
 
@@ -133,22 +142,11 @@ def duhem_columns_into(u: FloatArray, knots: FloatArray, lam: float, hmax: float
                 for j in range(2 * k_n):
                     state[j] *= a
                 # the hat functions at vm: two neighbours (or the end one, beyond the knots)
-                if vm <= knots[0]:
-                    state[0] += c * s
-                    state[k_n] += c
-                elif vm >= knots[k_n - 1]:
-                    state[k_n - 1] += c * s
-                    state[2 * k_n - 1] += c
+                lo, hi, w = _segment(vm, knots)
+                if lo == hi:
+                    state[lo] += c * s
+                    state[k_n + lo] += c
                 else:
-                    lo = 0
-                    hi = k_n - 1
-                    while hi - lo > 1:
-                        mid = (lo + hi) // 2
-                        if knots[mid] <= vm:
-                            lo = mid
-                        else:
-                            hi = mid
-                    w = (vm - knots[lo]) / (knots[hi] - knots[lo])
                     state[lo] += c * s * (1.0 - w)
                     state[hi] += c * s * w
                     state[k_n + lo] += c * (1.0 - w)
@@ -557,60 +555,15 @@ static double {advance}(double v0, double y0, double v1)
         }}
     }}
     return y;
-}}
-
-/* numerical inverse: bisection ({BISECTION_STEPS} halvings), one secant step, within the operating range */
-static double {fn}(double target)
-{{
-    const double v_prev = {vv};
-    const double y_prev = {yy};
-    const double f0 = {off} + y_prev + {kap} * v_prev - target;
-    double v;
-    if (f0 == 0.0) {{
-        v = v_prev;
-    }} else {{
-        double a = v_prev;
-        double b = v_prev - f0 / {smin};
-        double fa = f0;
-        double fb;
-        int it;
-        int done = 0;
-        int clamped = 0;
-        if (b > {hi}) {{ b = {hi}; clamped = 1; }} else if (b < {lo}) {{ b = {lo}; clamped = 1; }}
-        fb = {off} + {advance}(v_prev, y_prev, b) + {kap} * b - target;
-        if (clamped && fb * f0 >= 0.0) {{ v = b; done = 1; }}
-        if (fa > 0.0) {{
-            double t = a; a = b; b = t;
-            t = fa; fa = fb; fb = t;
-        }}
-        for (it = 0; !done && it < {BISECTION_STEPS}; ++it) {{
-            const double mid = 0.5 * (a + b);
-            const double fm = {off} + {advance}(v_prev, y_prev, mid) + {kap} * mid - target;
-            if (fm == 0.0) {{
-                v = mid;
-                done = 1;
-                break;
-            }}
-            if (fm < 0.0) {{
-                a = mid; fa = fm;
-            }} else {{
-                b = mid; fb = fm;
-            }}
-        }}
-        if (!done) {{
-            v = 0.5 * (a + b);
-            if (fb != fa) {{
-                const double lo_ = (b < a) ? b : a;
-                const double hi_ = (b > a) ? b : a;
-                const double sec = a - fa * (b - a) / (fb - fa);
-                if (sec >= lo_ && sec <= hi_) v = sec;
-            }}
-        }}
-    }}
-    {yy} = {advance}(v_prev, y_prev, v);
-    {vv} = v;
-    return v;
 }}""")
+        c_bracketed_solve(
+            c, fn, f"generalized Duhem model, numerical inverse: bisection ({BISECTION_STEPS} halvings), one secant "
+            "step, within the operating range",
+            prologue=f"    const double v_prev = {vv};\n    const double y_prev = {yy};",
+            f0=f"{off} + y_prev + {kap} * v_prev - target",
+            f_at=lambda x: f"{off} + {advance}(v_prev, y_prev, {x}) + {kap} * {x} - target",
+            s_min=smin, steps=BISECTION_STEPS, v_range=(lo, hi),
+            epilogue=f"    {yy} = {advance}(v_prev, y_prev, v);\n    {vv} = v;")
         return fn
 
 
