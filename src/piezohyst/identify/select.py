@@ -742,7 +742,7 @@ def _duhem_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bo
     refined around the best by factors of 1.41, 1.19, ..., 1.02 (:data:`DUHEM_RATE_STEPS`), and
     the knots (4, 8, 12; fewer must lose
     by :data:`MIN_GAIN`). The rate and the delay trade against each other, so the delay search
-    and the grid of rates alternate twice."""
+    and the grid of rates alternate until neither moves (twice at most)."""
     span = float(np.ptp(sc.u[: sc.n_fit]))
     keep_rate = lagged and st0.rate_dependent
     taus, itau = (st0.taus, st0.input_tau) if keep_rate else ((), 0.0)
@@ -762,12 +762,19 @@ def _duhem_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bo
     grid = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
     best = _best([cand(ls, k0, st0.delay) for ls in grid])
     if max_delay is not None:
-        # the rate and the delay trade against each other: each searched with the other fixed, twice
+        # the rate and the delay trade against each other: each searched with the other fixed,
+        # until neither moves (twice at most)
         for _ in range(2):
             if not math.isfinite(best.score):
                 break
+            d0 = best.structure.delay
             best = _best([best, _delay_search(sc, best.structure, 0, max_delay)])
+            if best.structure.delay == d0:
+                break
+            ls0 = best.structure.shape[0]
             best = _best([best, *(cand(ls, k0, best.structure.delay) for ls in grid)])
+            if best.structure.shape[0] == ls0:
+                break
     for factor in DUHEM_RATE_STEPS:
         ls0, d0 = best.structure.shape[0] * span, best.structure.delay
         best = _best([best, cand(ls0 / factor, k0, d0), cand(ls0 * factor, k0, d0)])
