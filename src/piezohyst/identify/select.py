@@ -421,9 +421,21 @@ def fit_model(
         # the paper's eq. (4) (the initial loading too): the whole search runs for each, since which
         # one wins can change once lags take part of the error
         rules = ("span", "eq4") if pi_static else ("span",)
+        # the generalized Duhem model does not depend on the P-I thresholds: its stage runs once,
+        # from the better of the two searches' lags and delay, rather than in each
+        once = len(rules) > 1 and "duhem" in statics and len(statics) > 1
+        per_rule = [s for s in statics if s != "duhem"] if once else list(statics)
         ends = [_linear_search(sc, replace(base, thresholds=r), ranges, delay, linear, n, n_fit, kind_name,
-                               statics, dt, say) for r in rules]
+                               per_rule, dt, say) for r in rules]
         best = min(ends, key=lambda c: c.score)
+        if once and ("generalized-duhem" in linear or ("rate-dependent" in linear and best.structure.rate_dependent)):
+            say("generalized Duhem model")
+            c = _duhem_shapes(sc, best, best.structure, "generalized-duhem" in linear, "rate-dependent" in linear,
+                              kind_name == "generalized-duhem", n, ranges.max_delay if delay == "auto" else None)
+            if c is not best and delay == "auto":
+                rate_ok = dt is not None and any(k in ("rate-dependent", "asymmetric-pi") for k in linear)
+                c = _realign(sc, c, ranges, (0.0, *ranges.input_taus) if rate_ok else (0.0,), linear, kind_name)
+            best = c
         say("local moves around the best")
         best = _polish(sc, best, ranges, delay, linear, n, kind_name)
     if "bouc-wen" in allowed and dt is not None:
