@@ -54,8 +54,7 @@ from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
 from ..models.play import play_operator
-from .linear import (DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, map_knots_for, mean_slope,
-                     prepare)
+from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals, unpack_data
 
 #: Relative drop of the hold-out error a more complex candidate must bring to be preferred.
@@ -212,14 +211,6 @@ class _Scorer:
         pre = self._prepared(replace(st, delay=0))
         t0 = time.perf_counter()
         d, n = st.delay, self.u.size
-        if st.map_knots:
-            try:  # an output that dwells on a few values (a noise-free dead zone) may not hold the knots
-                map_knots_for(self.y[d:self.n_fit:pre.stride], st.map_knots)
-            except ValueError:
-                c = _Candidate(st, st.label(), st.kind, math.inf, float("nan"), 0, 0.0, [math.inf])
-                self.tried.append(c)
-                self._done[st] = c
-                return c
         if self.validation:
             model, info, _ = fit_prepared(pre, self.y[d:self.n_fit], self.n_fit - d, self.dt, margin=self.margin,
                                           predict=(0, 1))
@@ -433,8 +424,7 @@ def fit_model(
             c = _duhem_shapes(sc, best, best.structure, "generalized-duhem" in linear, "rate-dependent" in linear,
                               kind_name == "generalized-duhem", n, ranges.max_delay if delay == "auto" else None)
             if c is not best and delay == "auto":
-                rate_ok = dt is not None and any(k in ("rate-dependent", "asymmetric-pi") for k in linear)
-                c = _realign(sc, c, ranges, (0.0, *ranges.input_taus) if rate_ok else (0.0,), linear, kind_name)
+                c = _realign(sc, c, ranges, _input_lags(ranges, dt, linear), linear, kind_name)
             best = c
         say("local moves around the best")
         best = _polish(sc, best, ranges, delay, linear, n, kind_name)
@@ -577,13 +567,19 @@ def _delays_near(d0: int, max_delay: int) -> list[int]:
     return sorted(out)
 
 
+def _input_lags(ranges: SearchRanges, dt: float | None, linear: list[str]) -> tuple[float, ...]:
+    """The input lags a search tries: none, and the data's range where a kind with lags is allowed."""
+    rate_ok = dt is not None and any(k in ("rate-dependent", "asymmetric-pi") for k in linear)
+    return (0.0, *ranges.input_taus) if rate_ok else (0.0,)
+
+
 def _linear_search(sc: _Scorer, base: Structure, ranges: SearchRanges, delay: Any, linear: list[str],
                    n: int | None, n_fit: int, kind_name: str | None, statics: Sequence[str],
                    dt: float | None, say: Callable[[str], None]) -> _Candidate:
     """Stages 1-4 of the module docstring from the static part ``base``."""
     rule = "" if base.static != "pi" else f" ({base.thresholds} thresholds)"
     rate_ok = dt is not None and any(k in ("rate-dependent", "asymmetric-pi") for k in linear)
-    itaus = (0.0, *ranges.input_taus) if rate_ok else (0.0,)
+    itaus = _input_lags(ranges, dt, linear)
     say("sensor delay and input lag" + rule)
     if delay == "auto":
         # delay and input lag trade against each other: search them jointly. An input lag of tau
