@@ -196,3 +196,19 @@ def test_a_loop_that_saturates_flat_is_refused_for_this_kind_and_auto_falls_back
     assert fit.model.is_invertible
     x_d = ph.sinusoid(2.0, 2, np.percentile(y, 20), np.percentile(y, 80), dt)
     assert np.all(np.isfinite(fit.model.compensator(dt).command(x_d)))
+
+
+@pytest.mark.parametrize("big", [{"f": [1e308, 0.0, 0.0]}, {"g": [0.01, 1e308, 0.01]}, {"knots": [0.0, 1.0, 1e308]}])
+def test_parameters_at_the_float_limit_load_quietly_and_claim_no_slope(big):
+    """A damaged model file (one value near the float range's end, found by the model-file fuzz)
+    loads without a numerical warning; no slope bound can be computed, so it is not invertible
+    and its compensator says so."""
+    import warnings
+
+    params = {"knots": [0.0, 50.0, 100.0], "f": [0.0, 0.001, 0.002], "g": [0.01, 0.01, 0.01], "lam": 0.01, **big}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        m = ph.GeneralizedDuhem(**params)
+    assert not m.is_invertible
+    with pytest.raises(ValueError, match="not invertible"):
+        m.compensator()

@@ -313,9 +313,10 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
         if fs is None:
             raise DataError(f"{where}: no time column; give the sample rate (fs= in Python, --fs at the command "
                             f"line) or name the time column ({flag('t')})")
-        out["t"] = np.arange(length) / fs
+        with np.errstate(over="ignore"):  # a sample rate so low that k / fs overflows: refused just below
+            out["t"] = np.arange(length) / fs
         meta["fs"] = fs
 
-    if out["t"].size >= 2 and not np.all(np.isfinite(out["t"])):  # pragma: no cover - t0 + k dt from finite values
+    if out["t"].size >= 2 and not np.all(np.isfinite(out["t"])):
         raise DataError(f"{where}: the time axis does not fit in a float")
     return Dataset._checked(out["t"], out["u"], out["y"], meta)

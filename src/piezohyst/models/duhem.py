@@ -332,17 +332,19 @@ class GeneralizedDuhem:
                 raise ValueError(f"v_range must hold 0 V (the rest state) with high > low, got {self.v_range}")
             rng = (lo, hi)
         object.__setattr__(self, "v_range", rng)
-        nodes, ylo, yhi, status = reachable_band(self.knots, self.f, self.g, self.lam, rng)
-        mid = 0.5 * (nodes[1:] + nodes[:-1])
-        big_f = np.interp(np.concatenate([nodes, mid]), self.knots, self.f)
-        big_g = np.interp(np.concatenate([nodes, mid]), self.knots, self.g)
-        # between two nodes the band is within the union of theirs
-        lo_all = np.concatenate([ylo, np.minimum(ylo[1:], ylo[:-1])])
-        hi_all = np.concatenate([yhi, np.maximum(yhi[1:], yhi[:-1])])
-        up = big_g + big_f - self.lam * hi_all
-        down = big_g - big_f + self.lam * lo_all
-        slope = float(min(up.min(), down.min()))
-        if status == 2:  # the band may still grow: no bound can be claimed
+        # parameters near the float range's end (a damaged file) overflow here: then no bound
+        with np.errstate(all="ignore"):
+            nodes, ylo, yhi, status = reachable_band(self.knots, self.f, self.g, self.lam, rng)
+            mid = 0.5 * (nodes[1:] + nodes[:-1])
+            big_f = np.interp(np.concatenate([nodes, mid]), self.knots, self.f)
+            big_g = np.interp(np.concatenate([nodes, mid]), self.knots, self.g)
+            # between two nodes the band is within the union of theirs
+            lo_all = np.concatenate([ylo, np.minimum(ylo[1:], ylo[:-1])])
+            hi_all = np.concatenate([yhi, np.maximum(yhi[1:], yhi[:-1])])
+            up = big_g + big_f - self.lam * hi_all
+            down = big_g - big_f + self.lam * lo_all
+            slope = float(min(up.min(), down.min()))
+        if status == 2 or not math.isfinite(slope):  # the band may still grow, or overflowed: no bound
             slope = -math.inf
         object.__setattr__(self, "_min_slope", slope)
 
@@ -350,7 +352,7 @@ class GeneralizedDuhem:
     def min_slope(self) -> float:
         """The smallest branch slope over the states an input within ``v_range`` reaches (µm/V);
         for a model whose branches fall, the smallest found before the search stopped (<= 0), or
-        ``-inf`` when the states' band did not settle (:data:`MAX_SWEEPS`)."""
+        ``-inf`` when the states' band did not settle (:data:`MAX_SWEEPS`) or overflowed."""
         return self._min_slope
 
     @property
