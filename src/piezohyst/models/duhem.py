@@ -14,7 +14,7 @@ piezoelectric hysteresis is the member with ``F = lam f`` (``f`` the anhystereti
 ``G = g``.
 
 ``F`` and ``G`` are piecewise linear over the ``knots`` (held constant beyond them). Over an
-increment ``h`` of the input, cut into sub-steps no longer than a quarter of the narrowest knot
+increment ``h`` of the input, cut into sub-steps no longer than a quarter of the mean knot
 interval, each sub-step freezes ``F`` and ``G`` at its midpoint and is then solved exactly::
 
     y <- a y + c (F(v_mid) + sign(h) G(v_mid)),   a = exp(-lam |h|),   c = (1 - a) / lam
@@ -54,7 +54,7 @@ from .base import InverseCompensator, c_bracketed_solve, check_dt, register_kind
 BISECTION_STEPS = 60
 #: Nodes over the operating range on which :func:`reachable_band` follows the states.
 REACH_NODES = 2000
-#: Sub-steps per narrowest knot interval (at most): ``F`` and ``G`` are frozen over each.
+#: Sub-steps per mean knot interval (at most): ``F`` and ``G`` are frozen over each.
 SUBSTEPS_PER_INTERVAL = 4
 
 
@@ -169,8 +169,10 @@ def duhem_columns(u: Any, knots: Any, lam: float, stride: int = 1, *, out: Float
 
 
 def substep(knots: FloatArray) -> float:
-    """The longest sub-step: :data:`SUBSTEPS_PER_INTERVAL` per narrowest knot interval."""
-    return float(np.min(np.diff(knots))) / SUBSTEPS_PER_INTERVAL
+    """The longest sub-step: :data:`SUBSTEPS_PER_INTERVAL` per mean knot interval (the knots'
+    span, not their narrowest interval: two knots a micro-volt apart in a model file must not cost
+    millions of sub-steps per sample; the fit's knots are evenly spaced, where the two agree)."""
+    return float(knots[-1] - knots[0]) / ((knots.size - 1) * SUBSTEPS_PER_INTERVAL)
 
 
 @njit
