@@ -305,7 +305,9 @@ class SafeTuningOptions:
     start_fraction, gain_step, max_factor : float
         The experiments try ``ki_model * start_fraction * gain_step**j`` up to
         ``ki_model * max_factor`` (and never beyond the model's own ultimate gain divided by
-        ``back_off``), stopping at the first gain that is not well damped.
+        ``back_off``), both scaled by how much flatter the stage is after a reversal than the
+        tracking loop's steep branches (:func:`tune_integral_safely`, step 3), stopping at the
+        first gain that is not well damped.
     repeats : int
         Probes (up and down) per gain, averaged: the answer's noise falls as 1/sqrt(2 repeats).
     overshoot_limit : float
@@ -422,10 +424,13 @@ def tune_integral_safely(
        the first gain whose answer overshoots by more than ``overshoot_limit`` (a loop losing its
        damping, seen at the probe's small amplitude) or that moves further than the probe can
        explain (aborted at once), and never goes past ``max_factor * ki_model`` or the model's
-       ultimate gain divided by ``back_off``. A trial that starts with the hold further off the
+       ultimate gain divided by ``back_off``, both times the reversal ratio over the large-signal
+       slope ratio (step 3: what the probes' loop at the flat slope after a reversal must show for
+       the tracking loop on the steep branches). A trial that starts with the hold further off the
        level than :data:`SETTLED_PROBES` times the probe's effect (the model off at that level,
        the stage still creeping or drifting) first lets the feedback take that error out, probe
-       off, within the same bounds widened by that error (and the command that cancels it); the
+       off, within the same bounds widened by that error (and the command that cancels it, at
+       the slope after a reversal: cancelling it may reverse the stage's motion); the
        probes come after, so their answers are answers to the probes and not to the offset
        (without this, every trial on such a stage was aborted and it got no feedback at all).
        A trial whose averaged answer never reaches :data:`MIN_ANSWER` of the probe shows nothing
@@ -437,16 +442,17 @@ def tune_integral_safely(
        resonance the model lacks); the stage then rests :data:`RING_DOWN_S` before the next
        trial. The command then ramps back to rest. The loop is never taken near instability, and
        the commands stay within a few probe sizes of the hold (and the settled offset's command).
-    3. ``ki`` = the largest well-damped gain / (``back_off`` * the large-signal slope ratio). The
-       experiments and the model's margins hold where the loop was linearised; a tracking run
-       sweeps the stage along branches that can be steeper (on a Preisach-like stage 2x and more
-       late on a branch), and the loop's gain grows with the slope: dividing by the ratio of the
-       steepest slope of the model's major loop to the linearised one
-       (:func:`large_signal_slope_ratio`) keeps the margins there too. When a growing
-       oscillation, a poorly damped answer or an aborted trial stopped the ladder (the plant's
-       limit, not the model's), the limit was found near a reversal (each probe after the first
-       reverses the one before), so the ratio is taken to the slope a probe sees after a reversal
-       (:func:`reversal_chord_slope`) instead. When already the first gain
+    3. ``ki`` = min(the largest well-damped gain / the reversal ratio, the ladder's model bound /
+       the large-signal slope ratio) / ``back_off``. The probes after the first reverse the one
+       before, so the experiments see the stage near a reversal, where a play-type stage is
+       several times flatter than on the branches a tracking run climbs; the loop's gain grows with
+       the slope. The reversal ratio is the model's major loop's steepest slope over the slope a
+       probe sees after a reversal (:func:`major_loop_steepest_slope`,
+       :func:`reversal_chord_slope`): a gain the probes found well damped holds for tracking
+       divided by it. So the ladder climbs until the probes' loop is as strong as the tracking
+       loop would be at the model's bound (the model's own margins divided by the large-signal
+       slope ratio, :func:`large_signal_slope_ratio`): a resonance the model lacks then shows in
+       the probes before it can ring in tracking. When already the first gain
        is not well damped (the model overestimates what the plant takes: an unmodelled
        resonance, more delay), the gain is halved until it is, at most five times (else
        ``ki = 0``: no feedback).
@@ -491,7 +497,21 @@ def tune_integral_safely(
     pc = [m["phase_crossover_hz"] for m in resp.margins(ki_model).values() if math.isfinite(m["phase_crossover_hz"])]
     f_pc = min(pc) if pc else 0.05 / dt
     ki_top = min(opt.max_factor * ki_model, ki_u_model / opt.back_off)
-    # -- 2. bounded experiments, one continuous session
+    # The probes after the first reverse the one before, so the experiments see the stage near a
+    # reversal, where a play-type stage is several times flatter than on the branch a tracking run
+    # climbs (``reversal_ratio``: the major loop's steepest slope over the slope a probe sees
+    # there). A gain the probes find well damped is proven for tracking only divided by that
+    # ratio: an unmodelled resonance that the probes' loop keeps damped can ring in the tracking
+    # loop, whose gain is that much larger. So the ladder climbs until the probes' loop is as
+    # strong as the tracking loop at the model's bound (``ki_top`` at the model's linearisation):
+    # no further into the model's margins than before, and any resonance the model lacks shows.
+    probe = min(opt.probe_fraction * lim.span, 0.5 * lim.max_step)
+    chord = reversal_chord_slope(model, dt, u_level=u_level, u_range=(lim.low, lim.high), step=probe)
+    steepest = major_loop_steepest_slope(model, dt, u_range=(lim.low, lim.high))
+    reversal_ratio = max(1.0, steepest / chord) if chord > 0 and math.isfinite(steepest) else slope_ratio
+    reversal_ratio = max(reversal_ratio, slope_ratio)
+    ki_ladder_top = ki_top * reversal_ratio / slope_ratio
+    # -- 2. bounded experiments, one continuous session (up to ki_ladder_top)
     plant.reset()
     if conditioning is not None:
         desired, cmd = lead_in_after(ff, model, conditioning, level, lim, dt, rise_s=rise_s)
@@ -507,7 +527,7 @@ def tune_integral_safely(
         ys[k] = plant.step(ff.step(float(x)))
     noise = float(np.std(np.diff(ys[-settle:])) / math.sqrt(2.0))
     ripple0 = math.sqrt(2.0) * noise  # the error's sample-to-sample RMS with the feedforward alone
-    probe = min(opt.probe_fraction * lim.span, 0.5 * lim.max_step)
+    volts_per_um_reversed = max(volts_per_um, 1.0 / chord) if chord > 0 else volts_per_um
     y_probe = probe / volts_per_um  # µm the probe moves the stage, roughly
     tol_e, tol_fb = 4 * y_probe + 10 * noise, 4 * probe
     pid = PID(0.0, opt.start_fraction * ki_model, 0.0, dt)
@@ -518,9 +538,11 @@ def tune_integral_safely(
     def run(n: int, probe_on: bool, fb0: float, e0: float, check: bool, offset: float = 0.0) -> FloatArray | None:
         """n samples at the hold; the feedback's outputs, or None if the trial had to stop. With
         ``offset`` (µm: the hold's error the feedback is to cancel) the error may move that much
-        further, and the feedback the command that cancels it."""
+        further, and the feedback the command that cancels it: against the branch the stage came
+        up or down, the command moves as far as the slope after a reversal asks (on a play-type
+        stage several times the mean inverse slope)."""
         kw = dict(n=n, level=level, add=probe if probe_on else 0.0, check=check, e0=e0, fb0=fb0,
-                  tol_e=tol_e + abs(offset), tol_fb=tol_fb + abs(offset) * volts_per_um,
+                  tol_e=tol_e + abs(offset), tol_fb=tol_fb + abs(offset) * volts_per_um_reversed,
                   vpu=volts_per_um, state=state)
         fast = run_hold(plant, ff, pid, **kw)  # the same loop, compiled, where the parts have kernels
         return hold_at_level(plant, ff, pid, **kw) if fast is NotImplemented else fast  # type: ignore[no-any-return]
@@ -596,7 +618,7 @@ def tune_integral_safely(
         ki = opt.start_fraction * ki_model
         if trial(ki):  # up the ladder while the loop stays well damped
             ki_ok = ki
-            while ki * opt.gain_step <= ki_top * (1 + 1e-9):
+            while ki * opt.gain_step <= ki_ladder_top * (1 + 1e-9):
                 ki *= opt.gain_step
                 if not trial(ki):
                     break
@@ -610,22 +632,17 @@ def tune_integral_safely(
     finally:
         plant.ramp_to(lim.rest)  # back to rest, smoothly, whatever happened
 
-    # The probes after the first reverse the one before, so the experiments linearise the stage
-    # near a reversal. When what stopped them was the plant (a trial not well damped or aborted, an
-    # oscillation growing: found by the plant rather than bounded by the model's margins), that
-    # limit holds at the slope a probe sees after a reversal; a tracking run climbs to the major
-    # loop's steepest slope, where the same gain has less margin (a play-type stage: 4-5x steeper
-    # than after a reversal): the gain is divided by that ratio instead. (Taken only for an
-    # oscillation once: a Maxwell-slip stage with a 384 Hz resonance at 3 % damping kept ki 456
-    # 1/s, found at the reversal's slope, and tracked oscillating at the resonance, 8 % e_max
-    # with feedback against 1.5 % without; now 117 1/s.)
+    # What the experiments proved holds for tracking divided by the reversal ratio; what the model
+    # allows (ki_top, its margins at its linearisation) divided by the large-signal slope ratio.
+    # When the ladder reached its top these agree with the model's bound alone; when the plant
+    # stopped it (a trial not well damped or aborted, an oscillation growing), the experiments
+    # decide. (Before the ladder climbed this far, a Maxwell-slip stage with a 384 Hz resonance at
+    # 3 % damping kept ki 456 1/s and tracked oscillating at the resonance, 8 % e_max with feedback
+    # against 1.5 % without; and a play-type stage behind a 250 Hz resonance at 5 % damping and 12
+    # samples of delay, whose probes stayed well damped up to the model's bound, kept 574 1/s and
+    # tracked at 3.7 / 5.8 / 9.5 % with feedback, the loop between the amplifier's limits at 5 Hz.)
     plant_limited = any(not e["well_damped"] for e in experiments)  # (a growing oscillation is not well damped)
-    if plant_limited and ki_ok > 0:
-        chord = reversal_chord_slope(model, dt, u_level=u_level, u_range=(lim.low, lim.high), step=probe)
-        steepest = major_loop_steepest_slope(model, dt, u_range=(lim.low, lim.high))
-        if chord > 0 and math.isfinite(steepest):
-            slope_ratio = max(slope_ratio, steepest / chord)
-    ki_final = ki_ok / (opt.back_off * slope_ratio)
+    ki_final = min(ki_ok / reversal_ratio, ki_top / slope_ratio) / opt.back_off
     margins = resp.margins(ki_final) if ki_final > 0 else {}
     if ki_final > 0:  # the same loop where the major loop is steepest
         margins["steepest"] = _margins(resp.freqs_hz, ki_final * slope_ratio * max(resp.loops.values(),
@@ -633,7 +650,8 @@ def tune_integral_safely(
     method = (f"integral gain from the model (phase margin {opt.phase_margin_deg:g} deg, gain margin "
               f"{opt.gain_margin:g}, delay {delay} + 1 samples): ki_model = {ki_model:.4g}; bounded experiments "
               f"(probe {probe:.3g} V, overshoot <= {opt.overshoot_limit:g}) well damped up to {ki_ok:.4g}; "
-              f"ki = {ki_ok:.4g} / ({opt.back_off:g} * large-signal slope ratio {slope_ratio:.3g}"
-              f"{' from a reversal: the experiments found the limit' if plant_limited else ''})")
+              f"ki = min({ki_ok:.4g} / reversal ratio {reversal_ratio:.3g}, {ki_top:.4g} / large-signal slope "
+              f"ratio {slope_ratio:.3g}) / {opt.back_off:g}"
+              f"{': the experiments found the limit' if plant_limited else ''}")
     return TuningResult(kp=0.0, ki=ki_final, kd=0.0, ki_ultimate=ki_u_model, trials=tuple(trials),
                         method=method, ki_model=ki_model, margins=margins, experiments=tuple(experiments))
