@@ -93,6 +93,39 @@ def test_track_refuses_a_non_plant():
         ph.track(object(), np.ones(10))
 
 
+class _OneSampleReads:
+    """A first-order plant whose ``step`` answers as a data-acquisition read of one sample does:
+    a one-element array (or what ``answer`` makes of the value)."""
+
+    def __init__(self, answer=lambda y: np.array([y])):
+        self.dt = 1e-3
+        self.answer = answer
+        self.reset()
+
+    def reset(self):
+        self.y = 0.0
+
+    def step(self, u):
+        self.y += 0.2 * (0.1 * u - self.y)
+        return self.answer(self.y)
+
+
+def test_a_plant_may_answer_with_a_one_sample_array():
+    ref = np.full(300, 2.0)
+    got = ph.track(_OneSampleReads(), ref, feedback=ph.PID(ki=20.0, dt=1e-3))
+    want = ph.track(_OneSampleReads(float), ref, feedback=ph.PID(ki=20.0, dt=1e-3))
+    assert np.array_equal(got.output, want.output)
+    assert ph.open_loop(_OneSampleReads(), np.ones(5)).y.dtype == np.float64
+
+
+@pytest.mark.parametrize("answer, what", [(lambda y: None, "None"), (lambda y: np.array([y, y]), r"an array of shape \(2,\)"),
+                                          (lambda y: "1.0", "'1.0'")])
+def test_a_plant_that_answers_with_no_number_is_told_what_it_returned(answer, what):
+    with pytest.raises(TypeError, match=r"plant\.step\(u\) must return the measured displacement as one "
+                                        r"number .* returned .*" + what):
+        ph.track(_OneSampleReads(answer), np.ones(10), feedback=ph.PID(ki=1.0, dt=1e-3))
+
+
 def test_unstable_loop_stops_with_the_settings_in_the_message():
     plant = UnboundedIntegrator(dt=1e-3)
     with pytest.raises(ph.UnstableLoopError, match=r"'kp': 50\.0"):

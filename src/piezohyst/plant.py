@@ -110,6 +110,25 @@ def plant_u_range(plant: Any, u_range: Any = None) -> tuple[float, float] | None
     return check_u_range(given) if given is not None else None
 
 
+def measured(y: Any) -> float:
+    """One answer of a plant's ``step`` as a float: a number, or the one value of a size-1 array
+    or sequence (what a data-acquisition read of one sample often returns). Anything else is a
+    TypeError that says what ``step`` returned."""
+    if isinstance(y, (float, int, np.floating, np.integer)) and not isinstance(y, bool):
+        return float(y)
+    a = None
+    if y is not None and not isinstance(y, (bool, np.bool_, str, bytes)):
+        try:
+            a = np.asarray(y, dtype=np.float64)
+        except (TypeError, ValueError):
+            a = None
+    if a is None or a.size != 1:
+        what = f"an array of shape {a.shape}" if a is not None else repr(y)[:60]
+        raise TypeError(f"plant.step(u) must return the measured displacement as one number (µm); it "
+                        f"returned {what} ({type(y).__name__})")
+    return float(a.reshape(()))
+
+
 def play_checked(plant: Any, u: FloatArray) -> FloatArray:
     """``plant.play(u)`` with its answer checked: finite, one value per command."""
     y = np.asarray(plant.play(np.ascontiguousarray(u, dtype=np.float64)), dtype=np.float64).ravel()
@@ -130,7 +149,7 @@ def open_loop(plant: Any, u: Any) -> Dataset:
     x = as_signal("u", u)
     if plant_mode(plant) == "step":
         plant.reset()
-        y = np.array([float(plant.step(v)) for v in x])
+        y = np.array([measured(plant.step(v)) for v in x])
         how = "step"
     else:
         y = play_checked(plant, x)
@@ -334,14 +353,14 @@ class GuardedPlant:
         """Guard ``u`` and apply it for one sample (a :class:`Plant`); the measured µm."""
         if self.mode != "step":
             raise TypeError("this plant plays tables (BufferedPlant): it has no per-sample step")
-        return float(self.plant.step(self._guard(u)))
+        return measured(self.plant.step(self._guard(u)))
 
     def play(self, u: Any) -> FloatArray:
         """Guard the table ``u`` and play it (either protocol: a Plant steps through it)."""
         sent = self.guard_table(u)
         if self.mode == "buffered":
             return play_checked(self.plant, sent)
-        return np.array([float(self.plant.step(v)) for v in sent])
+        return np.array([measured(self.plant.step(v)) for v in sent])
 
     def ramp_to(self, target: float, *, share: float = 0.5) -> FloatArray:
         """Move the command smoothly from where it is to ``target`` (clipped to the range): a

@@ -26,6 +26,7 @@ import numpy as np
 
 from .._validation import FloatArray, as_scalar, as_signal
 from ..signals import cycles_after_first, estimate_period
+from ..plant import measured
 
 
 class UnstableLoopError(RuntimeError):
@@ -431,7 +432,7 @@ def track(
         else:
             uk = ff_step(rk) + fb
         sat = watch.command(k, uk)
-        yk = float(pstep(uk))
+        yk = measured(pstep(uk))
         u[k] = uk
         y[k] = yk
         watch.output(k, yk, y)
