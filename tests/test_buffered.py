@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import piezohyst as ph
-from piezohyst.plant import CommandLimits, GuardedPlant, check_table, plant_mode
+from piezohyst.plant import CommandLimits, GuardedPlant, check_table, default_step_fraction, plant_mode
 
 from .stages import MaxwellSlipStage, Recorder
 
@@ -128,7 +128,7 @@ def test_limits_refuse_bad_values():
 @pytest.mark.parametrize("dt", [5e-5, 1e-4, 2e-4, 5e-4, 1e-3])
 @pytest.mark.parametrize("rng", [(0.0, 100.0), (-30.0, 120.0), (-150.0, 150.0), (20.0, 200.0)])
 def test_excitation_is_smooth_and_inside_the_range_at_any_rate(dt, rng):
-    lim = CommandLimits.for_range(rng)
+    lim = CommandLimits.for_range(rng, max_step_fraction=default_step_fraction(dt))
     u = commissioning_excitation(dt, rng)
     chk = check_table(u, lim, start=lim.rest)
     assert chk["outside"] == 0

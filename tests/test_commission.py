@@ -142,19 +142,23 @@ class _Backlash500Hz:
 
 
 def test_learning_that_drives_the_loop_to_the_limits_is_dropped_not_fatal():
-    # at 5 Hz (100 samples a cycle) the safe step limit cannot cross the 16 V gap in time, and
-    # the first learned correction threw the loop between the amplifier's limits: track() raised
-    # UnstableLoopError. Now the correction is dropped, learning stops, and the result says why.
+    # at 5 Hz (100 samples a cycle) a step limit of 2 % of the range per sample (the default at
+    # every sample rate then) cannot cross the 16 V gap in time, and the first learned correction
+    # threw the loop between the amplifier's limits: track() raised UnstableLoopError. Now the
+    # correction is dropped, learning stops, and the result says why.
     stage = _Backlash500Hz()
     stage.reset()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ctl = ph.commission(stage)
+        ctl = ph.commission(stage, max_step_fraction=0.02)
     lo, hi = np.percentile(ctl.identification.y, [10, 90])
-    out = ctl.track(ph.sinusoid(5.0, 6, lo, hi, stage.dt), period=100)
+    with pytest.warns(ph.ClippingWarning, match="slowed"):  # and the run says the limit slowed it
+        out = ctl.track(ph.sinusoid(5.0, 6, lo, hi, stage.dt), period=100)
     assert out.info["learning"] and "oscillates between the amplifier's limits" in out.info["learning_stopped"]
     assert np.all(np.isfinite(out.output))
     # without learning the same loop runs as before, and at 1 Hz learning works undisturbed
-    assert ctl.track(ph.sinusoid(5.0, 6, lo, hi, stage.dt), learning=False, period=100).info["learning_stopped"] is None
+    with pytest.warns(ph.ClippingWarning, match="slowed"):
+        alone = ctl.track(ph.sinusoid(5.0, 6, lo, hi, stage.dt), learning=False, period=100)
+    assert alone.info["learning_stopped"] is None
     slow = ctl.track(ph.sinusoid(1.0, 4, lo, hi, stage.dt), period=500)
     assert slow.info["learning_stopped"] is None and slow.e_max_percent < 3.0

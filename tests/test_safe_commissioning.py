@@ -213,3 +213,30 @@ def test_trials_the_stage_does_not_answer_show_no_damping():
     ff = ctl.track(ref, feedback=False, learning=False)
     fb = ctl.track(ref, learning=False)
     assert fb.e_max_percent <= 1.2 * ff.e_max_percent, (fb.e_max_percent, ff.e_max_percent, ctl.tuning.ki)
+
+
+def test_default_step_limit_lets_a_5_hz_sinusoid_through_at_500_hz_sampling():
+    # found by a probe of stages outside the zoo: at 500 Hz sampling the old default of 2 % of the
+    # range per sample (10 ranges per second) slowed a 5 Hz sinusoid over 80 % of the range: 8.7 %
+    # e_max with the feedforward alone, and with feedback the loop oscillated between the
+    # amplifier's limits (UnstableLoopError, "lower the feedback gains": the gains were not the cause)
+    from piezohyst.plant import default_step_fraction
+
+    from .plants.zoo import AsymmetricMaxwellSlip, Stage
+    from .test_zoo import steady_range
+
+    assert default_step_fraction(1e-4) == default_step_fraction(5e-4) == 0.02  # 2 kHz and up: as before
+    stage = Stage("Maxwell-slip, 500 Hz", AsymmetricMaxwellSlip(100.0, 15.0), 2e-3, (0.0, 100.0),
+                  kv=((0.03, 0.2),), fn_hz=150.0, zeta=0.3, noise_um=0.003, delay_samples=1)
+    ctl = ph.commission(stage)
+    a, b = steady_range(stage)
+    ref = ph.sinusoid(5.0, 6, a, b, stage.dt)
+    ff = ctl.track(ref[:300], feedback=False, learning=False, period=100)
+    fb = ctl.track(ref, learning=False, period=100)
+    assert ff.e_max_percent < 1.0 and fb.e_max_percent < 1.0, (ff.e_max_percent, fb.e_max_percent)
+    assert ff.info["safety"]["slew_limited"] == 0
+    # with the old limit the user is told why the error is large
+    slow = ph.commission(stage, max_step_fraction=0.02, tune=False)
+    with pytest.warns(ph.ClippingWarning, match="slowed .* step limit of 2 V per sample"):
+        out = slow.track(ref[:300], feedback=False, learning=False, period=100)
+    assert out.e_max_percent > 3.0

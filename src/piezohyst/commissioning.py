@@ -9,7 +9,8 @@ Plant protocol (``reset()``, ``step(u)``: a per-sample loop) or the BufferedPlan
 
 **Safety first.** Everything sent to the stage passes the safe layer of :mod:`piezohyst.plant`:
 commands stay inside the amplifier's range and change by at most ``max_step_fraction`` of the range
-per sample (default 2 %: 2 V per sample on 0-100 V; change it with ``commission(...,
+per sample (default 2 %: 2 V per sample on 0-100 V, more below 2 kHz sampling, see
+:func:`~piezohyst.plant.default_step_fraction`; change it with ``commission(...,
 max_step_fraction=...)``, the range with ``u_range=...``, the command a plant that has not been
 driven yet holds with ``u_rest=...``). The experiments are designed inside those limits (the
 guard counts what it had to change, ``ctl.info["safety"]``; it is zero for the built-in
@@ -102,6 +103,7 @@ ablation and in ``tests/test_commission.py``):
 from __future__ import annotations
 
 import math
+import warnings
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
@@ -114,7 +116,7 @@ from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safel
 from .data import Dataset
 from .identify import FitResult, fit_model
 from .models.base import Compensator, kind_of
-from .plant import (MAX_STEP_FRACTION, CommandLimits, GuardedPlant, check_plant, check_table, plant_mode,
+from .plant import (CommandLimits, default_step_fraction, GuardedPlant, check_plant, check_table, plant_mode,
                     plant_u_range)
 from .signals import estimate_period, sinusoid
 
@@ -160,19 +162,39 @@ def _join(parts: list[FloatArray], start: float, limits: CommandLimits, dt: floa
     return np.concatenate(out)
 
 
+#: Share of a run's commands the safe layer may slow before :func:`_warn_if_slowed` says so.
+SLOWED_SHARE = 0.05
+
+
+def _warn_if_slowed(res: TrackingResult, what: str) -> None:
+    """A :class:`~piezohyst.ClippingWarning` when the safe layer slowed more than
+    :data:`SLOWED_SHARE` of a run's commands: the error then says more about the step limit than
+    about the controller (a 5 Hz sinusoid at 500 Hz sampling asked for 2.6 V per sample against 2)."""
+    safety = res.info.get("safety") or {}
+    sent, slowed = int(safety.get("commands_sent", 0)), int(safety.get("slew_limited", 0))
+    if sent and slowed > SLOWED_SHARE * sent:
+        from .rig import ClippingWarning
+
+        warnings.warn(f"{what}: the safe layer slowed {slowed} of {sent} commands to its step limit of "
+                      f"{safety.get('max_step_V', float('nan')):.3g} V per sample: the reference asks for faster "
+                      f"changes than the limits allow, and the error shows it; slow the reference, or commission "
+                      f"with a larger max_step_fraction", ClippingWarning, stacklevel=3)
+
+
 def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100.0), *,
-                             max_step_fraction: float = MAX_STEP_FRACTION, start: float | None = None) -> FloatArray:
+                             max_step_fraction: float | None = None, start: float | None = None) -> FloatArray:
     """The identification experiment's command (V): see the module docstring, step 1.
 
     Every segment starts where the previous one ended or is joined to it by a raised-cosine ramp,
     and the whole command changes by at most half of ``max_step_fraction * (high - low)`` per
-    sample: a sinusoid that would be faster at this ``dt`` is slowed to that limit. ``start`` is the
+    sample (default :func:`~piezohyst.plant.default_step_fraction` of ``dt``): a sinusoid that would be faster at this ``dt`` is slowed to that limit. ``start`` is the
     command the plant holds before (default: 0 V, or the nearest end of the range); the table
     begins with a ramp from it and ends with a ramp back to it. Its first
     :func:`identification_length` samples are fitted on; the rest only chooses among the
     candidate models.
     """
-    limits = CommandLimits.for_range(u_range, max_step_fraction=max_step_fraction, rest=start)
+    step = default_step_fraction(dt) if max_step_fraction is None else max_step_fraction
+    limits = CommandLimits.for_range(u_range, max_step_fraction=step, rest=start)
     fit, choose = _excitation_parts(dt, limits)
     head = _join(fit, limits.rest, limits, dt)
     tail = _join(choose, float(head[-1]), limits, dt)
@@ -196,9 +218,10 @@ def conditioning_sweep(limits: CommandLimits, dt: float, leg_s: float = 0.25) ->
 
 
 def identification_length(dt: float, u_range: tuple[float, float] = (0.0, 100.0), *,
-                          max_step_fraction: float = MAX_STEP_FRACTION, start: float | None = None) -> int:
+                          max_step_fraction: float | None = None, start: float | None = None) -> int:
     """Samples of :func:`commissioning_excitation` that are fitted on (the rest is for choosing)."""
-    limits = CommandLimits.for_range(u_range, max_step_fraction=max_step_fraction, rest=start)
+    step = default_step_fraction(dt) if max_step_fraction is None else max_step_fraction
+    limits = CommandLimits.for_range(u_range, max_step_fraction=step, rest=start)
     return int(_join(_excitation_parts(dt, limits)[0], limits.rest, limits, dt).size)
 
 
@@ -412,11 +435,14 @@ class CommissionedController:
         if self.mode == "buffered":
             if feedback:
                 raise ValueError(NO_LOOP.replace("no feedback: ", "cannot use feedback: "))
-            return self._track_buffered(r, learning=learning, period=period, label=label,
-                                        max_plays=self.max_plays if max_plays is None else int(max_plays),
-                                        conditioning=cond)
-        return self._track_step(r, feedback=True if feedback is None else bool(feedback), learning=learning,
-                                period=period, label=label, conditioning=cond)
+            res = self._track_buffered(r, learning=learning, period=period, label=label,
+                                       max_plays=self.max_plays if max_plays is None else int(max_plays),
+                                       conditioning=cond)
+        else:
+            res = self._track_step(r, feedback=True if feedback is None else bool(feedback), learning=learning,
+                                   period=period, label=label, conditioning=cond)
+        _warn_if_slowed(res, "track")
+        return res
 
     def _cutoff(self, per: int | None, dt: float) -> float:
         return self.ilc_cutoff_hz or (max(50.0, 15.0 / (per * dt)) if per else 50.0)
@@ -705,7 +731,7 @@ def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, p
 
 def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None = None, n: int | None = None,
                excitation: Any = None, tune: bool = True, learning_gain: float = 0.5,
-               max_step_fraction: float = MAX_STEP_FRACTION, u_rest: float | None = None,
+               max_step_fraction: float | None = None, u_rest: float | None = None,
                tuning: SafeTuningOptions | None = None, kinds: Sequence[str] = COMMISSION_KINDS,
                max_plays: int = 8, progress: Callable[[str], None] | None = None,
                conditioning: bool = False) -> CommissionedController:
@@ -722,10 +748,11 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     u_range : (low, high), optional
         The amplifier's range, V; default the plant's ``u_range``, else (0, 100). No command
         outside it is ever sent.
-    max_step_fraction : float
+    max_step_fraction : float, optional
         The largest change of the command from one sample to the next, as a fraction of the range
-        (default 0.02: 2 V per sample on 0-100 V). Ramps are as long as it requires at the plant's
-        sample rate.
+        (default 0.02: 2 V per sample on 0-100 V; below 2 kHz sampling, what a full-range 10 Hz
+        sinusoid needs: :func:`~piezohyst.plant.default_step_fraction`). Ramps are as long as it
+        requires at the plant's sample rate.
     u_rest : float, optional
         The command the plant holds before commissioning (default 0 V, or the nearest end of a
         range without 0): the first ramp starts there. A per-sample plant is at it after ``reset()``.
@@ -763,6 +790,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     dt = check_plant(plant)
     mode = plant_mode(plant)
     rng_u = plant_u_range(plant, u_range) or (0.0, 100.0)
+    if max_step_fraction is None:
+        max_step_fraction = default_step_fraction(dt)
     limits = CommandLimits.for_range(rng_u, max_step_fraction=max_step_fraction, rest=u_rest)
     n_id = None
     if excitation is None:

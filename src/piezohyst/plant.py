@@ -22,8 +22,13 @@ a change larger than the limit is cut to it, *before* ``step`` or ``play``; both
 run can say how often the guard had to act (for the excitations and experiments of
 :func:`~piezohyst.commission` it never has to: they are designed inside the limits). The limit is
 relative to the range, ``max_step = max_step_fraction * (high - low)`` volts per sample (default
-2 %: 2 V on a 0-100 V amplifier, 6 V on a +-150 V one), so it means the same at every sample
-rate; ramps (:meth:`GuardedPlant.ramp_to`) take as many samples as that limit requires.
+2 %: 2 V on a 0-100 V amplifier, 6 V on a +-150 V one); ramps (:meth:`GuardedPlant.ramp_to`)
+take as many samples as that limit requires. At sample rates below 2 kHz the default
+(:func:`default_step_fraction`) grows with the sample period, so that a full-range sinusoid of
+:data:`STEP_LIMIT_SINE_HZ` still passes: at 500 Hz, 2 % per sample is 10 ranges per second, and
+the guard slowed a 5 Hz tracking run over 80 % of the range (8.7 % e_max with the feedforward
+alone, and with feedback the loop wound up against the slowed command until it oscillated
+between the amplifier's limits).
 """
 
 from __future__ import annotations
@@ -40,6 +45,20 @@ from .data import Dataset
 
 #: Default largest command change per sample, as a fraction of the amplifier's range.
 MAX_STEP_FRACTION = 0.02
+#: The fastest full-range sinusoid (Hz) the default step limit lets through at any sample rate.
+STEP_LIMIT_SINE_HZ = 10.0
+
+
+def default_step_fraction(dt: float) -> float:
+    """The default step limit at sample period ``dt`` (s), as a fraction of the range:
+    :data:`MAX_STEP_FRACTION`, or what a full-range sinusoid of :data:`STEP_LIMIT_SINE_HZ` changes
+    by per sample (``pi f dt`` of the range) with a quarter to spare, whichever is larger (from
+    2 kHz down: 3.9 % at 1 kHz, 7.9 % at 500 Hz).
+
+    >>> default_step_fraction(1e-4), round(default_step_fraction(2e-3), 4)
+    (0.02, 0.0785)
+    """
+    return min(1.0, max(MAX_STEP_FRACTION, 1.25 * math.pi * STEP_LIMIT_SINE_HZ * float(dt)))
 #: Shortest ramp the safe layer plays, seconds (a ramp is never faster than this, whatever dt).
 MIN_RAMP_S = 0.01
 
