@@ -23,7 +23,7 @@ def test_ranges_follow_the_data_not_a_stage():
     u = record(freq=2.0)
     f_lo, f_hi = excitation_band(u, DT)
     assert 1.0 <= f_lo <= 2.0 <= f_hi <= 4.0
-    r = search_ranges(u, DT, n_fit=u.size)
+    r = search_ranges(u, DT, n_fit=u.size, one_rate_rule=False)  # (the ranges of a record of several rates)
     # lags from a few samples up to half the record, two per decade; delays up to 5 % of the
     # fastest period; input lags below 0.2 / (2 pi f_hi)
     assert r.creep_taus[0] >= 2 * DT and r.creep_taus[-1] <= 0.5 * u.size * DT
@@ -31,12 +31,12 @@ def test_ranges_follow_the_data_not_a_stage():
     assert r.max_delay >= 5 and r.max_delay * DT <= max(0.05 / f_hi, 5 * DT) + DT
     assert all(t <= 0.2 / (2 * np.pi * f_hi) for t in r.input_taus)
     # the same record at 10x the sample rate: the same ranges in seconds
-    r10 = search_ranges(np.repeat(u, 10), DT / 10, n_fit=u.size * 10)
+    r10 = search_ranges(np.repeat(u, 10), DT / 10, n_fit=u.size * 10, one_rate_rule=False)
     assert r10.creep_taus[-1] == pytest.approx(r.creep_taus[-1], rel=1e-6)
     # where two per decade stop more than a quarter decade short of half the fitting part, that
     # half is the last lag (a creep of a few seconds is what such a record identifies)
     for n_fit in (2500, 5000, 6000, 8000):
-        taus = search_ranges(u, DT, n_fit=n_fit).creep_taus
+        taus = search_ranges(u, DT, n_fit=n_fit, one_rate_rule=False).creep_taus
         half = 0.5 * n_fit * DT
         assert taus[-1] <= half * (1 + 1e-9) and taus[-1] >= half / 10 ** 0.25
         assert all(b / a == pytest.approx(np.sqrt(10)) for a, b in zip(taus[:-2], taus[1:-1]))
@@ -52,7 +52,26 @@ def test_exact_model_is_found_and_refitted_on_everything():
     table = fit.info["candidates"]
     assert sum(c["chosen"] for c in table) == 1
     assert fit.info["holdout"]["rmse"] == min(c["holdout_rmse"] for c in table) or fit.info["holdout"]["rmse"] < 1e-9
-    assert fit.warnings == []
+    # the record is of one rate (1 Hz, decaying): that, and nothing else, is said
+    assert len(fit.warnings) == 1 and "has one rate (1.07 Hz" in fit.warnings[0], fit.warnings
+
+
+def _two_rates(seconds=8.0):
+    """A record of two rates: full-range cycles at 1 Hz, then at 5 Hz, decaying."""
+    return np.concatenate([record(freq=1.0, seconds=seconds / 2), record(freq=5.0, seconds=seconds / 2)])
+
+
+def test_one_rate_records_are_told_apart_and_searched_for_what_they_show():
+    u1 = record(freq=2.0)
+    r1 = search_ranges(u1, DT, n_fit=u1.size)
+    assert r1.single_rate_hz == pytest.approx(2.0, rel=0.05)
+    # no input lag and no lag within a decade of the excitation: nothing one rate can identify
+    assert r1.input_taus == () and all(t >= 10 / (2 * np.pi * 2.0) for t in r1.rate_taus + r1.creep_taus)
+    assert search_ranges(u1, DT, n_fit=u1.size, one_rate_rule=False).single_rate_hz is None
+    r2 = search_ranges(_two_rates(), DT, n_fit=8000)
+    assert r2.single_rate_hz is None and r2.input_taus
+    one_then_two = np.concatenate([record(freq=1.0, seconds=4.0), record(freq=2.0, seconds=4.0)])  # half an octave apart
+    assert search_ranges(one_then_two, DT, n_fit=8000).single_rate_hz is None
 
 
 def test_delay_is_found_on_held_out_data():
