@@ -114,15 +114,20 @@ SINGLE_RATE_SHARE = 0.75
 ONE_RATE_DELAY_GAIN = 0.5
 
 
+def _input_power(u: FloatArray, dt: float) -> tuple[FloatArray, FloatArray, float]:
+    """Frequencies (Hz), power spectrum of the mean-removed input (0 at DC) and its total."""
+    x = np.asarray(u, dtype=np.float64) - float(np.mean(u))
+    spec: FloatArray = np.abs(np.fft.rfft(x)) ** 2
+    spec[0] = 0.0
+    freqs = np.asarray(np.fft.rfftfreq(x.size, dt), dtype=np.float64)
+    return freqs, spec, float(spec.sum())
+
+
 def single_rate(u: FloatArray, dt: float) -> float | None:
     """The strongest frequency (Hz) of ``u`` when :data:`SINGLE_RATE_SHARE` of its mean-removed
     power lies within half an octave of it (``f / sqrt 2`` to ``f sqrt 2``), else None: a record
     of one rate (a sinusoid, also of varying amplitude; one of 1 Hz then 2 Hz has two)."""
-    x = np.asarray(u, dtype=np.float64) - float(np.mean(u))
-    spec = np.abs(np.fft.rfft(x)) ** 2
-    freqs = np.fft.rfftfreq(x.size, dt)
-    spec[0] = 0.0
-    total = float(spec.sum())
+    freqs, spec, total = _input_power(u, dt)
     if total <= 0:
         return None
     f_peak = float(freqs[int(np.argmax(spec))])
@@ -132,17 +137,13 @@ def single_rate(u: FloatArray, dt: float) -> float | None:
 
 def excitation_band(u: FloatArray, dt: float) -> tuple[float, float]:
     """``(f_lo, f_hi)``: where 1 % and 98 % of the input's (mean-removed) power has accumulated."""
-    x = np.asarray(u, dtype=np.float64) - float(np.mean(u))
-    spec = np.abs(np.fft.rfft(x)) ** 2
-    freqs = np.fft.rfftfreq(x.size, dt)
-    spec[0] = 0.0
-    total = float(spec.sum())
+    freqs, spec, total = _input_power(u, dt)
     if total <= 0:
         raise ValueError("u is constant: a constant input cannot identify a hysteresis model")
     cum = np.cumsum(spec) / total
     f_lo = float(freqs[int(np.searchsorted(cum, 0.01))])
     f_hi = float(freqs[min(int(np.searchsorted(cum, 0.98)), freqs.size - 1)])
-    f_min = 1.0 / (x.size * dt)
+    f_min = 1.0 / (np.size(u) * dt)
     return max(f_lo, f_min), max(f_hi, f_lo, f_min)
 
 
