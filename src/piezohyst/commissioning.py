@@ -103,8 +103,8 @@ ablation and in ``tests/test_commission.py``):
 from __future__ import annotations
 
 import math
-import warnings
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -116,7 +116,7 @@ from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safel
 from .data import Dataset
 from .identify import FitResult, fit_model
 from .models.base import Compensator, kind_of
-from .plant import (CommandLimits, default_step_fraction, GuardedPlant, check_plant, check_table, plant_mode,
+from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
                     plant_u_range)
 from .signals import estimate_period, sinusoid
 
@@ -181,20 +181,27 @@ def _warn_if_slowed(res: TrackingResult, what: str) -> None:
                       f"with a larger max_step_fraction", ClippingWarning, stacklevel=3)
 
 
+def _limits(dt: float, u_range: Any, max_step_fraction: float | None, rest: float | None) -> CommandLimits:
+    """The safe layer's limits for ``u_range`` at sample period ``dt``: the step limit given, or
+    :func:`~piezohyst.plant.default_step_fraction` of ``dt``."""
+    step = default_step_fraction(dt) if max_step_fraction is None else max_step_fraction
+    return CommandLimits.for_range(u_range, max_step_fraction=step, rest=rest)
+
+
 def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100.0), *,
                              max_step_fraction: float | None = None, start: float | None = None) -> FloatArray:
     """The identification experiment's command (V): see the module docstring, step 1.
 
     Every segment starts where the previous one ended or is joined to it by a raised-cosine ramp,
     and the whole command changes by at most half of ``max_step_fraction * (high - low)`` per
-    sample (default :func:`~piezohyst.plant.default_step_fraction` of ``dt``): a sinusoid that would be faster at this ``dt`` is slowed to that limit. ``start`` is the
-    command the plant holds before (default: 0 V, or the nearest end of the range); the table
+    sample (default :func:`~piezohyst.plant.default_step_fraction` of ``dt``): a sinusoid that
+    would be faster at this ``dt`` is slowed to that limit. ``start`` is the command the plant
+    holds before (default: 0 V, or the nearest end of the range); the table
     begins with a ramp from it and ends with a ramp back to it. Its first
     :func:`identification_length` samples are fitted on; the rest only chooses among the
     candidate models.
     """
-    step = default_step_fraction(dt) if max_step_fraction is None else max_step_fraction
-    limits = CommandLimits.for_range(u_range, max_step_fraction=step, rest=start)
+    limits = _limits(dt, u_range, max_step_fraction, start)
     fit, choose = _excitation_parts(dt, limits)
     head = _join(fit, limits.rest, limits, dt)
     tail = _join(choose, float(head[-1]), limits, dt)
@@ -220,8 +227,7 @@ def conditioning_sweep(limits: CommandLimits, dt: float, leg_s: float = 0.25) ->
 def identification_length(dt: float, u_range: tuple[float, float] = (0.0, 100.0), *,
                           max_step_fraction: float | None = None, start: float | None = None) -> int:
     """Samples of :func:`commissioning_excitation` that are fitted on (the rest is for choosing)."""
-    step = default_step_fraction(dt) if max_step_fraction is None else max_step_fraction
-    limits = CommandLimits.for_range(u_range, max_step_fraction=step, rest=start)
+    limits = _limits(dt, u_range, max_step_fraction, start)
     return int(_join(_excitation_parts(dt, limits)[0], limits.rest, limits, dt).size)
 
 
@@ -792,7 +798,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     rng_u = plant_u_range(plant, u_range) or (0.0, 100.0)
     if max_step_fraction is None:
         max_step_fraction = default_step_fraction(dt)
-    limits = CommandLimits.for_range(rng_u, max_step_fraction=max_step_fraction, rest=u_rest)
+    limits = _limits(dt, rng_u, max_step_fraction, u_rest)
     n_id = None
     if excitation is None:
         cmd = commissioning_excitation(dt, rng_u, max_step_fraction=max_step_fraction, start=limits.rest)
