@@ -539,12 +539,12 @@ def fit_model(
     if ranges.single_rate_hz is not None:
         final.warnings.append(
             f"the training record has one rate ({ranges.single_rate_hz:.3g} Hz: at least {SINGLE_RATE_SHARE:.0%} of "
-            f"the input's power within half an octave of it), which cannot tell a sensor delay from the loop's own phase "
-            f"lag, nor rate dependence from the loop's shape: the search kept "
-            f"{'a delay only where it halves the error, ' if delay == 'auto' and max_delay is None else ''}no input "
-            f"lag and no lag within "
-            f"a decade of the excitation's rate. Give the delay (delay=N, --delay N), or identify on a record with several rates and amplitudes "
-            f"(commissioning_excitation), or choose on validation data of other rates")
+            f"the input's power within half an octave of it), which cannot tell a sensor delay from the loop's own "
+            f"phase lag, nor rate dependence from the loop's shape: the search kept "
+            f"{'a delay only where it halves the error, ' if delay == 'auto' and max_delay is None else ''}"
+            f"no input lag and no lag within a decade of the excitation's rate. Give the delay (delay=N, --delay N), "
+            f"or identify on a record with several rates and amplitudes (commissioning_excitation), or choose on "
+            f"validation data of other rates")
     if w:
         final.info["warmup"] = w
     final.time_s = time.perf_counter() - t0
