@@ -431,8 +431,12 @@ def fit_model(
     if margin is None:
         margin = DEFAULT_MARGIN * mean_slope(us[:n_fit], ys[:n_fit])
     # validation sets of other rates would show what a record of one rate cannot: the rule is for
-    # a choice made on the record's own later part
-    ranges = search_ranges(us, dt, n_fit, one_rate_rule=not vsets)
+    # a choice made on the record's own later part, and not for a rate-dependent model asked for
+    # by name (its lags are what the caller wants; the result then says what they rest on)
+    ranges = search_ranges(us, dt, n_fit, one_rate_rule=not vsets and kind_name != "rate-dependent")
+    one_rate_hz = ranges.single_rate_hz
+    if kind_name == "rate-dependent" and not vsets and dt is not None:
+        one_rate_hz = single_rate(us[:n_fit], dt)
     if taus is not None or input_taus is not None or max_delay is not None:
         ranges = replace(
             ranges, max_delay=ranges.max_delay if max_delay is None else int(max_delay),
@@ -536,6 +540,11 @@ def fit_model(
     final.info["chosen"] = best.label
     final.method = f"selection on held-out data: {best.label}"
     final.warnings = _quality_warnings(final, us, ys, dt, best, span, vsets, n_fit, sc) + final.warnings
+    if one_rate_hz is not None and ranges.single_rate_hz is None:
+        final.warnings.append(
+            f"the training record has one rate ({one_rate_hz:.3g} Hz: at least {SINGLE_RATE_SHARE:.0%} of the "
+            f"input's power within half an octave of it): the rate-dependent model's lags and delay are fitted to "
+            f"that rate and may act differently at others; check it on data of other rates")
     if ranges.single_rate_hz is not None:
         final.warnings.append(
             f"the training record has one rate ({ranges.single_rate_hz:.3g} Hz: at least {SINGLE_RATE_SHARE:.0%} of "
