@@ -51,7 +51,9 @@ only where it halves the hold-out error of the same structure without it
 (:data:`ONE_RATE_DELAY_GAIN`: a delay the data show beyond doubt, such as that of a model exact
 with it), tries no input lag and no lag within a decade of the excitation (``tau < 10 / (2 pi
 f_peak)``: such a lag's weight is fitted to one rate and acts differently at any other; slower
-ones act as creep at every rate in use), and the result warns that it was fitted on one rate.
+ones act as creep at every rate in use; a rate-dependent model asked for by name keeps the lags
+slower than the excitation, ``1 / (2 pi f_peak)``), and the result warns that it was fitted on one
+rate.
 """
 
 from __future__ import annotations
@@ -112,6 +114,10 @@ SINGLE_RATE_SHARE = 0.75
 #: On a record of one rate, a delay is kept only when it brings the hold-out error below this
 #: fraction of the same structure's without it (module docstring).
 ONE_RATE_DELAY_GAIN = 0.5
+#: On a record of one rate, the automatic choice tries no lag shorter than this over ``2 pi f_peak``
+#: (a decade slower than the excitation); a rate-dependent model asked for by name, none shorter
+#: than ``1 / (2 pi f_peak)`` (slower than the excitation: what the issue's 20 Hz record identified).
+ONE_RATE_LAGS = 10.0
 
 
 def _input_power(u: FloatArray, dt: float) -> tuple[FloatArray, FloatArray, float]:
@@ -154,9 +160,12 @@ def _geometric(lo: float, hi: float, ratio: float) -> tuple[float, ...]:
     return tuple(float(lo * ratio**i) for i in range(k + 1))
 
 
-def search_ranges(u: FloatArray, dt: float | None, n_fit: int, *, one_rate_rule: bool = True) -> SearchRanges:
+def search_ranges(u: FloatArray, dt: float | None, n_fit: int, *, one_rate_rule: bool = True,
+                  one_rate_lags: float = ONE_RATE_LAGS) -> SearchRanges:
     """The search's ranges from the data alone (module docstring); with ``one_rate_rule`` (the
-    choice is made on a later part of the same record) those of a record of one rate."""
+    choice is made on a later part of the same record) those of a record of one rate: no input
+    lag, no lag shorter than ``one_rate_lags / (2 pi f_peak)`` (with ``one_rate_lags <= 1``, what a
+    rate-dependent model asked for by name uses, at least the slowest lag)."""
     if dt is None:
         return SearchRanges(None, None, max(5, min(n_fit // 50, 50)), (), (), ())
     f_lo, f_hi = excitation_band(u[:n_fit], dt)
@@ -174,10 +183,13 @@ def search_ranges(u: FloatArray, dt: float | None, n_fit: int, *, one_rate_rule:
     # rate dependence: lags within the excitation's band (tau <= 1 / (2 pi f_lo)); creep: longer ones
     rate = tuple(t for t in taus if t <= 1.0 / (2 * math.pi * f_lo)) or taus[:1]
     f_one = single_rate(u[:n_fit], dt) if one_rate_rule else None
-    if f_one is not None:  # one rate: no input lag, no lag within a decade of the excitation
-        slow = 10.0 / (2 * math.pi * f_one)
-        return SearchRanges(f_lo, f_hi, max_delay, (), tuple(t for t in rate if t >= slow),
-                            tuple(t for t in taus if t >= slow), single_rate_hz=f_one)
+    if f_one is not None:  # one rate: no input lag, no lag the one rate cannot tell (module docstring)
+        slow = one_rate_lags / (2 * math.pi * f_one)
+        kept = tuple(t for t in taus if t >= slow)
+        if not kept and one_rate_lags <= 1.0:  # a rate-dependent model asked for: at least the slowest lag
+            kept = taus[-1:]
+        return SearchRanges(f_lo, f_hi, max_delay, (), tuple(t for t in rate if t >= slow) or kept[:1], kept,
+                            single_rate_hz=f_one)
     return SearchRanges(f_lo, f_hi, max_delay, input_taus, rate, taus)
 
 
@@ -431,12 +443,10 @@ def fit_model(
     if margin is None:
         margin = DEFAULT_MARGIN * mean_slope(us[:n_fit], ys[:n_fit])
     # validation sets of other rates would show what a record of one rate cannot: the rule is for
-    # a choice made on the record's own later part, and not for a rate-dependent model asked for
-    # by name (its lags are what the caller wants; the result then says what they rest on)
-    ranges = search_ranges(us, dt, n_fit, one_rate_rule=not vsets and kind_name != "rate-dependent")
-    one_rate_hz = ranges.single_rate_hz
-    if kind_name == "rate-dependent" and not vsets and dt is not None:
-        one_rate_hz = single_rate(us[:n_fit], dt)
+    # a choice made on the record's own later part; a rate-dependent model asked for by name keeps
+    # the lags slower than the excitation (its lags are what the caller wants)
+    one_rate_lags = 1.0 if kind_name == "rate-dependent" else ONE_RATE_LAGS
+    ranges = search_ranges(us, dt, n_fit, one_rate_rule=not vsets, one_rate_lags=one_rate_lags)
     if taus is not None or input_taus is not None or max_delay is not None:
         ranges = replace(
             ranges, max_delay=ranges.max_delay if max_delay is None else int(max_delay),
@@ -540,18 +550,14 @@ def fit_model(
     final.info["chosen"] = best.label
     final.method = f"selection on held-out data: {best.label}"
     final.warnings = _quality_warnings(final, us, ys, dt, best, span, vsets, n_fit, sc) + final.warnings
-    if one_rate_hz is not None and ranges.single_rate_hz is None:
-        final.warnings.append(
-            f"the training record has one rate ({one_rate_hz:.3g} Hz: at least {SINGLE_RATE_SHARE:.0%} of the "
-            f"input's power within half an octave of it): the rate-dependent model's lags and delay are fitted to "
-            f"that rate and may act differently at others; check it on data of other rates")
     if ranges.single_rate_hz is not None:
         final.warnings.append(
             f"the training record has one rate ({ranges.single_rate_hz:.3g} Hz: at least {SINGLE_RATE_SHARE:.0%} of "
             f"the input's power within half an octave of it), which cannot tell a sensor delay from the loop's own "
             f"phase lag, nor rate dependence from the loop's shape: the search kept "
             f"{'a delay only where it halves the error, ' if delay == 'auto' and max_delay is None else ''}"
-            f"no input lag and no lag within a decade of the excitation's rate. Give the delay (delay=N, --delay N), "
+            f"no input lag and no lag {'within a decade of' if one_rate_lags > 1 else 'faster than'} the "
+            f"excitation; the lags and delay kept are fitted to that rate. Give the delay (delay=N, --delay N), "
             f"or identify on a record with several rates and amplitudes (commissioning_excitation), or choose on "
             f"validation data of other rates")
     if w:
