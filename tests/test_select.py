@@ -278,3 +278,13 @@ def test_a_model_fitted_on_one_rate_carries_over_to_another():
     k0 = test.u.size // 3
     rms = 100 * np.sqrt(np.mean((test.y[k0:] - pred[k0:]) ** 2)) / np.ptp(test.y)
     assert rms < 3.0, (rms, fit.info["chosen"])
+
+
+def test_a_record_of_major_loops_only_is_said_to_leave_the_inner_loops_unidentified():
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(10, 100.0), np.linspace(0.02, 0.002, 10))
+    full = ph.sinusoid(1.0, 4, 0.0, 100.0, DT)
+    fit = ph.fit_model(full, true.simulate(full), DT, kind="pi")
+    assert any("reverses only at the ends of its range (7 reversals)" in w for w in fit.warnings), fit.warnings
+    nested = record()  # two full cycles, then decaying ones: inner loops are there
+    fit = ph.fit_model(nested, true.simulate(nested), DT, kind="pi")
+    assert not any("reverses only at the ends" in w for w in fit.warnings), fit.warnings

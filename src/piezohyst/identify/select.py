@@ -998,12 +998,46 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
         if abs(diff) > max(0.01 * span, 0.5 * sd):
             out.append(f"the residual depends on the direction of motion (mean {diff:+.3g} between rising and "
                        f"falling input): the model misses part of the loop's shape")
+    ends = _reversals_at_the_ends_only(uu)
+    if ends:
+        out.append(f"the input reverses only at the ends of its range ({ends} reversals): loops inside it (partial "
+                   f"strokes) are not identified and the model may follow them poorly; a record that also reverses "
+                   f"at smaller amplitudes (a decaying sinusoid, commissioning_excitation) identifies them")
     falls, reversals = _falling_after_reversal(uu, y[d:] if d else y, pred[: pred.size - d] if d else pred, span)
     if falls >= max(3, 0.1 * reversals):
         out.append(f"after {falls} input reversals the output keeps moving the old way where the model (with its "
                    f"delay and lags) turns: no monotone model represents that; the compensator cannot cancel it, "
                    f"feedback must")
     return out
+
+
+#: Share of the input's range a turning point may lie from its end and still count as at the end
+#: (:func:`_reversals_at_the_ends_only`); also the dead band that tells a reversal from noise.
+END_BAND = 0.05
+
+
+def _reversals_at_the_ends_only(u: FloatArray) -> int:
+    """The number of reversals of ``u`` when there are at least two and every one lies within
+    :data:`END_BAND` of the range's ends (major loops only), else 0. A reversal is a running
+    extreme the input then leaves by more than that band (noise and dither do not count)."""
+    lo, hi = float(np.min(u)), float(np.max(u))
+    band = END_BAND * (hi - lo)
+    if not band > 0:
+        return 0
+    turns: list[float] = []
+    ext, direction = float(u[0]), 0  # the running extreme, and the direction of motion since the last turn
+    for x in map(float, u[:: max(1, u.size // 100_000)]):  # (at most 10^5 points: a warning, not a fit)
+        if direction == 0:  # not yet left the start by the band
+            if abs(x - ext) > band:
+                direction, ext = (1 if x > ext else -1), x
+        elif (x - ext) * direction > 0:
+            ext = x
+        elif abs(x - ext) > band:
+            turns.append(ext)
+            direction, ext = -direction, x
+    if len(turns) < 2 or any(lo + band < t < hi - band for t in turns):
+        return 0
+    return len(turns)
 
 
 def _falling_after_reversal(u: FloatArray, y: FloatArray, model: FloatArray, span: float) -> tuple[int, int]:
