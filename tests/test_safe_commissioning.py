@@ -240,3 +240,18 @@ def test_default_step_limit_lets_a_5_hz_sinusoid_through_at_500_hz_sampling():
     with pytest.warns(ph.ClippingWarning, match="slowed .* step limit of 2 V per sample"):
         out = slow.track(ref[:300], feedback=False, learning=False, period=100)
     assert out.e_max_percent > 3.0
+
+
+class _Reversed(_SensorOffset):
+    """The wrapped stage read with the opposite sign (a sensor mounted the other way round)."""
+
+    def step(self, u):
+        return -self.plant.step(u)
+
+
+def test_a_stage_read_with_the_opposite_sign_is_named_as_such():
+    # every model kind has a rising loop; the user is told to flip the sign, not to "negate y"
+    # of a record they never made
+    plant = _Reversed(ResonantStage(seed=0), 0.0)
+    with pytest.raises(ValueError, match=r"falls as the command rises.*_Reversed\.step\(\)"):
+        ph.commission(plant, tune=False)

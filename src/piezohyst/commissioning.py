@@ -115,6 +115,7 @@ from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
+from .identify.select import rises_with_input
 from .models.base import Compensator, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
                     plant_u_range)
@@ -836,6 +837,11 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         y = guard.play(cmd)
         ds = Dataset(np.arange(cmd.size, dtype=np.float64) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "play"})
     ident_counts = guard.counts()
+    if not rises_with_input(ds.u[warmup:], ds.y[warmup:]):
+        raise ValueError(
+            f"the plant's displacement falls as the command rises (its gain is negative, e.g. a sensor "
+            f"mounted the other way round): make {type(plant).__name__}.step() return the displacement "
+            "with the sign that rises with the command (multiply it by -1)")
     if n_id is not None:
         # fit on the identification part, choose on the rest; the winner is refitted on all of it
         fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, holdout=int(ds.u.size - n_id),

@@ -348,6 +348,14 @@ def _delay_search(sc: _Scorer, base: Structure, lo: int, hi: int) -> _Candidate:
 
 
 @with_single_threaded_blas  # hundreds of small products: more threads only contend (piezohyst._blas)
+def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
+    """False when the output falls as the input rises (negative correlation, e.g. a sensor mounted
+    the other way round): every model kind here has a rising loop."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.corrcoef(u, y)[0, 1]
+    return not r < 0
+
+
 def fit_model(
     u: Any, y: Any = None, dt: float | None = None, kind: str = "auto", *,
     validation: Sequence[Any] | None = None, holdout: float | int = HOLDOUT, delay: int | str = "auto",
@@ -413,7 +421,7 @@ def fit_model(
     t0 = time.perf_counter()
     u, y, dt = unpack_data(u, y, dt)
     us, ys = paired_signals(u, y, 0)
-    if np.corrcoef(us, ys)[0, 1] < 0:
+    if not rises_with_input(us, ys):
         raise ValueError("the output falls as the input rises (negative correlation): negate y first")
     dt = as_scalar("dt", dt, positive=True) if dt is not None else None
     say = progress or (lambda s: None)
