@@ -33,3 +33,26 @@ def test_the_scan_is_kept_until_a_module_is_imported(monkeypatch):
     monkeypatch.setitem(sys.modules, "piezohyst_test_new_module", types.ModuleType("piezohyst_test_new_module"))
     _blas._openblas_controls()
     assert len(scans) == 2
+
+
+def test_the_model_search_solves_on_one_thread(monkeypatch):
+    # the search's hundreds of small Cholesky solves took 2-14x longer on two threads of a busy
+    # 2-core machine (commission() 3.6 -> 7.2 s when a helper slipped in between fit_model and
+    # its decorator): every solve inside fit_model must see one thread
+    import piezohyst as ph
+    import piezohyst.identify.linear as linear
+
+    if not _blas._openblas_controls():
+        pytest.skip("no OpenBLAS found in this process")
+    seen = []
+    solve = linear.bounded_lstsq_gram
+
+    def spy(*args, **kwargs):
+        seen.append(max(int(get()) for _, get in _blas._openblas_controls()))
+        return solve(*args, **kwargs)
+
+    monkeypatch.setattr(linear, "bounded_lstsq_gram", spy)
+    u = ph.sinusoid(1.0, 4, 0.0, 100.0, 1e-3) * np.linspace(1.0, 0.5, 4000)
+    y = ph.PrandtlIshlinskii([0.0, 10.0, 25.0], [0.1, 0.05, 0.03]).simulate(u)
+    ph.fit_model(u, y, 1e-3, kinds=["pi"])
+    assert seen and max(seen) == 1

@@ -347,7 +347,6 @@ def _delay_search(sc: _Scorer, base: Structure, lo: int, hi: int) -> _Candidate:
             cands[d] = sc.linear(replace(base, delay=d))
 
 
-@with_single_threaded_blas  # hundreds of small products: more threads only contend (piezohyst._blas)
 def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
     """False when the output falls as the input rises (negative correlation, e.g. a sensor mounted
     the other way round): every model kind here has a rising loop."""
@@ -356,6 +355,7 @@ def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
     return not r < 0
 
 
+@with_single_threaded_blas  # hundreds of small products: more threads only contend (piezohyst._blas)
 def fit_model(
     u: Any, y: Any = None, dt: float | None = None, kind: str = "auto", *,
     validation: Sequence[Any] | None = None, holdout: float | int = HOLDOUT, delay: int | str = "auto",
