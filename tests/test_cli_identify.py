@@ -126,3 +126,19 @@ def test_identify_warmup_runs_through_the_first_samples_without_fitting_them(tmp
     assert got[sweep.size]["fit"]["rmse"] < got[0]["fit"]["rmse"]
     assert main(["identify", str(path), "--model", "pi", "--method", "lsq", "--warmup", "10"]) == 2
     assert "--warmup" in capsys.readouterr().err
+
+
+def test_identify_reads_the_rigs_own_loops_file(tmp_path, capsys):
+    # `piezohyst rig` writes one (t, u, y) triple per frequency: with one frequency identify finds
+    # its columns; with several it says which records there are, in the command line's spelling
+    one, three = tmp_path / "one", tmp_path / "three"
+    assert main(["rig", "--freq", "2", "--cycles", "2", "--out", str(one)]) == 0
+    assert main(["identify", str(one / "rig_loops.csv"), "--model", "pi", "--out", str(tmp_path / "m.json")]) == 0
+    assert ph.load_model(tmp_path / "m.json").kind == "prandtl-ishlinskii"
+    assert main(["rig", "--freq", "2,4", "--cycles", "2", "--out", str(three)]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(three / "rig_loops.csv"), "--model", "pi"]) != 0
+    err = capsys.readouterr().err
+    assert "holds 2 records (2hz, 4hz)" in err and "(--u-col, --y-col)" in err and "in Python" not in err
+    assert main(["identify", str(three / "rig_loops.csv"), "--model", "pi", "--u-col", "u_4Hz_V",
+                 "--y-col", "y_4Hz_um"]) == 0

@@ -603,3 +603,42 @@ def test_meta_is_json_ready(tmp_path, ref):
     json.dumps(ds.meta)
     assert ds.meta["source"] == str(p) and len(ds.meta["source_sha256"]) == 64
     assert os.fspath(p) in ds.meta["source"]
+
+
+# ---- tables of several records (``piezohyst rig``: one (t, u, y) triple per frequency) ---------
+def _triples(tmp_path, records):
+    """A CSV with ``t_<tag>_s, u_<tag>_V, y_<tag>_um`` per record, shorter records padded with nan."""
+    n = max(k for _, k in records)
+    names, cols = [], []
+    for tag, k in records:
+        names += [f"t_{tag}_s", f"u_{tag}_V", f"y_{tag}_um"]
+        pad = np.full(n - k, np.nan)
+        cols += [np.concatenate([T[:k], pad]), np.concatenate([U[:k], pad]), np.concatenate([Y[:k], pad])]
+    p = tmp_path / "loops.csv"
+    p.write_text(",".join(names) + "\n" + "\n".join(lines(cols, ["%.10g"] * len(cols), ",")) + "\n")
+    return p
+
+
+def test_a_table_of_one_record_per_tag_names_its_columns_itself(tmp_path):
+    ds = ph.load_dataset(_triples(tmp_path, [("1Hz", N)]))
+    np.testing.assert_allclose(ds.u, U)
+    np.testing.assert_allclose(ds.y, Y)
+    np.testing.assert_allclose(ds.t, T)
+
+
+def test_a_table_of_several_records_asks_which_and_takes_that_records_time(tmp_path):
+    p = _triples(tmp_path, [("1Hz", N), ("5Hz", 25)])
+    with pytest.raises(DataError, match=r"holds 2 records \(1hz, 5hz\).*'u_1Hz_V', 'u_5Hz_V'"):
+        ph.load_dataset(p)
+    ds = ph.load_dataset(p, u_col="u_5Hz_V", y_col="y_5Hz_um")  # its time column, its 25 rows
+    assert len(ds) == 25 and ds.meta["empty_rows_dropped_at_the_end"] == N - 25
+    np.testing.assert_allclose(ds.t, T[:25])
+    np.testing.assert_allclose(ds.y, Y[:25])
+
+
+def test_an_empty_cell_in_only_one_column_is_still_an_error(tmp_path):
+    p = tmp_path / "gap.csv"
+    rows = ["t,u,y"] + [f"{T[i]},{U[i]},{Y[i]}" for i in range(10)] + [f"{T[10]},{U[10]},nan"]
+    p.write_text("\n".join(rows) + "\n")
+    with pytest.raises(DataError, match=r"line 12, column 'y' reads 'nan'"):
+        ph.load_dataset(p)

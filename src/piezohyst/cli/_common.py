@@ -142,6 +142,8 @@ def cli_spelling(message: str, flags: dict[str, str]) -> str:
             return m.group(0)
         return f + (" " + m.group(2) if m.group(2) else "")
 
+    # "name it (u_col= in Python, --u-col at the command line)": at the command line, the latter
+    message = re.sub(r"(?<=\()[^();]*? in Python, ([^();]*?) at the command line(?=\))", r"\1", message)
     out = re.sub(r"(?<![\w-])([A-Za-z_]\w*)=True\b", true_kw, message)
     out = re.sub(r"(?<![\w-])([A-Za-z_]\w*)=(\S?)", kw, out)
     out = out.replace(f"{flags.get('force', '--force')} / {flags.get('force', '--force')}", flags.get("force", "--force"))

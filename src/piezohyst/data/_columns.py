@@ -113,6 +113,29 @@ def guess_by_alias(names: Sequence[tuple[Key, Sequence[str]]], role: str, where:
             which = ", ".join(repr(describe(h)) for h in hits[:6])
             raise DataError(f"{where}: several columns could be {ROLE_WORDS[role]} ({which}); "
                             f"name one ({flag(role)})")
+    return _guess_in_triples(normed, role, where, describe)
+
+
+def _guess_in_triples(normed: list[tuple[Key, set[str]]], role: str, where: str, describe: Any) -> Key | None:
+    """``t_<tag>``, ``u_<tag>``, ``y_<tag>`` (units apart): one record per tag, as ``piezohyst rig``
+    writes one (t, u, y) triple per frequency (``t_1Hz_s, u_1Hz_V, y_1Hz_um``). With one tag whose
+    u and y are both there, its column of ``role``; with several, the caller must choose."""
+    if role not in ("t", "u", "y"):
+        return None
+    groups: dict[str, dict[str, Key]] = {}
+    for k, ns in normed:
+        for n in ns:
+            if len(n) > 2 and n[0] in "tuy" and n[1] == "_":
+                groups.setdefault(n[2:], {}).setdefault(n[0], k)
+    triples = {tag: g for tag, g in groups.items() if "u" in g and "y" in g}
+    if len(triples) > 1 and role != "t":  # the time: the caller pairs it with the chosen u
+        which = ", ".join(repr(describe(g[role])) for g in triples.values() if role in g)
+        if which:
+            raise DataError(f"{where}: the file holds {len(triples)} records ({', '.join(sorted(triples))}); "
+                            f"several columns could be {ROLE_WORDS[role]} ({which}); name the record's u and y "
+                            f"(u_col=, y_col= in Python, --u-col, --y-col at the command line)")
+    if len(triples) == 1:
+        return next(iter(triples.values())).get(role)
     return None
 
 
@@ -186,6 +209,17 @@ def check_units_arg(units: Any, where: str) -> dict[str, Any]:
     return dict(units)
 
 
+def _time_of_the_same_record(src: Source, ku: Key, ky: Key) -> Key | None:
+    """``t_<tag>`` when u and y are ``u_<tag>`` and ``y_<tag>`` (:func:`_guess_in_triples`)."""
+    nu, ny = normal_name(src.label(ku)), normal_name(src.label(ky))
+    if not (nu.startswith("u_") and ny.startswith("y_") and nu[2:] == ny[2:] and nu[2:]):
+        return None
+    try:
+        return src.find(f"t_{nu[2:]}", "t")
+    except DataError:
+        return None
+
+
 # ------------------------------------------------------------------------------------------------
 def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = None,
              fs: Any = None, units: Any = None, resample: bool = False,
@@ -221,6 +255,8 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
                     raise DataError(f"{where}: u and y come with different time vectors ({src.label(ct_u)!r} and "
                                     f"{src.label(ct_y)!r}); name the time column ({flag('t')})")
             kt = ct_u if ct_u is not None else ct_y
+        if kt is None:
+            kt = _time_of_the_same_record(src, keys["u"], keys["y"])
     if kt is not None and kt in (keys["u"], keys["y"]):
         raise DataError(f"{where}: the time column {src.label(kt)!r} is also u or y; name the columns "
                         f"({flag('t')})")
@@ -234,6 +270,17 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
         sizes = ", ".join(f"{labels[r]!r} ({ROLE_WORDS[r]}) has {n[r]}" for r in roles)
         raise DataError(f"{where}: the columns differ in length: {sizes} samples")
     length = n["u"]
+    # a shorter record in a table of several (``piezohyst rig`` writes one per frequency, a
+    # spreadsheet pads its columns): the rows after it are empty in all the chosen columns
+    empty = np.ones(length, dtype=bool)
+    for r in roles:
+        empty &= ~np.isfinite(arrays[r])
+    tail = int(length - (np.flatnonzero(~empty)[-1] + 1)) if (~empty).any() else length
+    if 0 < tail < length:
+        length -= tail
+        arrays = {r: a[:length] for r, a in arrays.items()}
+    else:
+        tail = 0
     if length < 2:
         raise DataError(f"{where}: needs at least 2 samples, found {length}")
 
@@ -262,6 +309,8 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
 
     meta: dict[str, Any] = dict(extra_meta or {})
     meta.update(src.meta)
+    if tail:
+        meta["empty_rows_dropped_at_the_end"] = tail
     meta["columns"] = {r: (labels[r] if keys[r] is not None else None) for r in ("t", "u", "y")}
     meta["units"] = {r: convs[r].to_meta() for r in roles}
 
