@@ -288,3 +288,13 @@ def test_a_record_of_major_loops_only_is_said_to_leave_the_inner_loops_unidentif
     nested = record()  # two full cycles, then decaying ones: inner loops are there
     fit = ph.fit_model(nested, true.simulate(nested), DT, kind="pi")
     assert not any("reverses only at the ends" in w for w in fit.warnings), fit.warnings
+
+
+def test_a_record_that_never_reverses_is_said_to_show_no_loop():
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(10, 100.0), np.linspace(0.02, 0.002, 10))
+    ramp = np.linspace(0.0, 100.0, 4000) + 0.2 * np.sin(np.arange(4000))  # dither does not count
+    fit = ph.fit_model(ramp, true.simulate(ramp), DT, kind="pi")
+    assert any("never reverses" in w for w in fit.warnings), fit.warnings
+    once = np.concatenate([ramp, ramp[::-1]])  # up and down once: the descending branch is there
+    fit = ph.fit_model(once, true.simulate(once), DT, kind="pi")
+    assert not any("never reverses" in w for w in fit.warnings), fit.warnings

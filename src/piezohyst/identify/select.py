@@ -1006,6 +1006,10 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
         if abs(diff) > max(0.01 * span, 0.5 * sd):
             out.append(f"the residual depends on the direction of motion (mean {diff:+.3g} between rising and "
                        f"falling input): the model misses part of the loop's shape")
+    if not _input_reversals(uu)[0]:
+        out.append(f"the input never reverses (by more than {100 * END_BAND:g} % of its range): a record that only "
+                   "rises or only falls shows no branch the other way, so the model's hysteresis (the width of its "
+                   "loop) is a guess; identify on cycles up and down (a sinusoid, commissioning_excitation)")
     ends = _reversals_at_the_ends_only(uu)
     if ends:
         out.append(f"the input reverses only at the ends of its range ({ends} reversals): loops inside it (partial "
@@ -1024,15 +1028,14 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
 END_BAND = 0.05
 
 
-def _reversals_at_the_ends_only(u: FloatArray) -> int:
-    """The number of reversals of ``u`` when there are at least two and every one lies within
-    :data:`END_BAND` of the range's ends (major loops only), else 0. A reversal is a running
-    extreme the input then leaves by more than that band (noise and dither do not count)."""
+def _input_reversals(u: FloatArray) -> tuple[list[float], float, float, float]:
+    """The reversals of ``u`` (the running extremes the input then leaves by more than
+    :data:`END_BAND` of its range: noise and dither do not count), the range's ends and the band."""
     lo, hi = float(np.min(u)), float(np.max(u))
     band = END_BAND * (hi - lo)
-    if not band > 0:
-        return 0
     turns: list[float] = []
+    if not band > 0:
+        return turns, lo, hi, band
     ext, direction = float(u[0]), 0  # the running extreme, and the direction of motion since the last turn
     for x in map(float, u[:: max(1, u.size // 100_000)]):  # (at most 10^5 points: a warning, not a fit)
         if direction == 0:  # not yet left the start by the band
@@ -1043,6 +1046,13 @@ def _reversals_at_the_ends_only(u: FloatArray) -> int:
         elif abs(x - ext) > band:
             turns.append(ext)
             direction, ext = -direction, x
+    return turns, lo, hi, band
+
+
+def _reversals_at_the_ends_only(u: FloatArray) -> int:
+    """The number of reversals of ``u`` (:func:`_input_reversals`) when there are at least two and every one
+    lies within :data:`END_BAND` of the range's ends (major loops only), else 0."""
+    turns, lo, hi, band = _input_reversals(u)
     if len(turns) < 2 or any(lo + band < t < hi - band for t in turns):
         return 0
     return len(turns)
