@@ -9,6 +9,8 @@ the VirtualRig, and nothing in piezohyst was tuned on them.
 * :class:`ResonantStage` - a per-sample stage whose mechanics have a resonance the slow
   identification experiment cannot see (second order, exact discretisation), after play-operator
   hysteresis of its own thresholds; 10 kHz, 0..100 V, delay 2 samples.
+* :class:`ButterflyStage` - play operators plus electrostriction on a bipolar range, not monotone
+  near its negative end (5 kHz, -60..60 V).
 * :class:`Recorder` - wraps either protocol and records every command the stage receives.
 """
 
@@ -123,6 +125,45 @@ class ResonantStage:
         self.x1 = p10 * self.x0 + p11 * self.x1 + g1 * f
         self.x0 = x0
         y = x0 + self.noise * self._next_noise()
+        if not self.delay:
+            return y
+        self.line.append(y)
+        return self.line.pop(0)
+
+
+class ButterflyStage:
+    """Play-operator hysteresis plus electrostriction, ``y = P[v] + c v^2``, on a bipolar -60..60 V
+    range: below about -36 V more command gives less displacement on the branch rising from the
+    bottom (the butterfly loop of a stack driven too far negative). An amplifier lag, one sample
+    of delay, noise; 5 kHz. Not monotone over its own ``u_range``."""
+
+    def __init__(self, seed=0, dt=2e-4, delay=1, noise_um=0.001):
+        self.dt = dt
+        self.u_range = (-60.0, 60.0)
+        self.seed = seed
+        self._r = np.linspace(0.0, 36.0, 10).tolist()
+        w = np.linspace(1.0, 0.3, 10)
+        self._w = (w / w.sum() * 0.7 * 8.0 / 60.0).tolist()
+        self.c = 0.3 * 8.0 / 60.0**2
+        self.a_amp = math.exp(-dt / 2e-4)
+        self.delay = delay
+        self.noise = noise_um
+        self.reset()
+
+    def reset(self):
+        self.z = [0.0] * len(self._r)
+        self.v = 0.0
+        self.line = [0.0] * self.delay
+        self.rng = np.random.default_rng(self.seed)
+
+    def step(self, u):
+        lo, hi = self.u_range
+        self.v = self.a_amp * self.v + (1.0 - self.a_amp) * min(max(float(u), lo), hi)
+        v, f, z = self.v, 0.0, self.z
+        for i, (ri, wi) in enumerate(zip(self._r, self._w)):
+            z[i] = min(max(z[i], v - ri), v + ri)
+            f += wi * z[i]
+        y = f + self.c * v * v + self.noise * float(self.rng.standard_normal())
         if not self.delay:
             return y
         self.line.append(y)

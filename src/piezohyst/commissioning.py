@@ -103,6 +103,7 @@ ablation and in ``tests/test_commission.py``):
 from __future__ import annotations
 
 import math
+import threading
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -115,6 +116,7 @@ from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
+from .identify.monotone import MonotoneRange, NotMonotoneWarning, monotone_range
 from .identify.select import rises_with_input
 from .models.base import Compensator, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
@@ -736,6 +738,36 @@ def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, p
     return True
 
 
+#: how far inside the input at which a non-monotone stage follows the command again the range is
+#: narrowed (fraction of the range)
+MONOTONE_MARGIN = 0.02
+_narrowing = threading.local()
+
+
+def _commission_where_monotone(plant: Any, call: dict[str, Any], mono: MonotoneRange, limits: CommandLimits,
+                               own_excitation: bool) -> "CommissionedController":
+    """The identification showed the stage not monotone at an end of the range (a butterfly
+    loop): commission again within the part where it is, with a warning; or, where that cannot be
+    done safely (an excitation of the caller's, a rest command outside that part, a second time),
+    refuse with the range to give."""
+    lo, hi = limits.low, limits.high
+    margin = MONOTONE_MARGIN * (hi - lo)
+    new_lo = lo if mono.low is None else min(mono.low + margin, hi)
+    new_hi = hi if mono.high is None else max(mono.high - margin, lo)
+    what = mono.describe(lo, hi)
+    fix = f"commission(plant, u_range=({new_lo:.4g}, {new_hi:.4g}))"
+    if own_excitation or getattr(_narrowing, "active", False) or not new_lo <= limits.rest <= new_hi \
+            or not new_hi - new_lo > 0.2 * (hi - lo):
+        raise ValueError(f"{what}; {fix}")
+    warnings.warn(f"{what}. Commissioning again within {new_lo:.4g}..{new_hi:.4g} V, the controller's range "
+                  f"from now on ({100 * MONOTONE_MARGIN:g} % of the range inside that)", NotMonotoneWarning, stacklevel=3)
+    _narrowing.active = True
+    try:
+        return commission(plant, **{**call, "u_range": (new_lo, new_hi)})
+    finally:
+        _narrowing.active = False
+
+
 def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None = None, n: int | None = None,
                excitation: Any = None, tune: bool = True, learning_gain: float = 0.5,
                max_step_fraction: float | None = None, u_rest: float | None = None,
@@ -793,6 +825,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         ``info["safety"]`` holds the limits and what the safe layer counted (commands sent,
         clipped, slowed; the largest step sent).
     """
+    call = {k: v for k, v in locals().items() if k != "plant"}  # to commission again in a narrower range
     t0 = time.perf_counter()
     dt = check_plant(plant)
     mode = plant_mode(plant)
@@ -842,6 +875,9 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
             f"the plant's displacement falls as the command rises (its gain is negative, e.g. a sensor "
             f"mounted the other way round): make {type(plant).__name__}.step() return the displacement "
             "with the sign that rises with the command (multiply it by -1)")
+    mono = monotone_range(ds.u[warmup:], ds.y[warmup:])
+    if not mono.monotone:
+        return _commission_where_monotone(plant, call, mono, limits, excitation is not None)
     if n_id is not None:
         # fit on the identification part, choose on the rest; the winner is refitted on all of it
         fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, holdout=int(ds.u.size - n_id),

@@ -70,6 +70,7 @@ from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
 from ..models.play import play_operator
+from .monotone import monotone_range
 from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals, unpack_data
 
@@ -1006,6 +1007,10 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
         if abs(diff) > max(0.01 * span, 0.5 * sd):
             out.append(f"the residual depends on the direction of motion (mean {diff:+.3g} between rising and "
                        f"falling input): the model misses part of the loop's shape")
+    mono = monotone_range(uu, y[d:] if d else y)
+    if not mono.monotone:
+        out.append(f"{mono.describe(float(np.min(uu)), float(np.max(uu)))}: a model fitted over the whole range is "
+                   "fitted to what no compensator can use; identify within that range")
     if not _input_reversals(uu)[0]:
         out.append(f"the input never reverses (by more than {100 * END_BAND:g} % of its range): a record that only "
                    "rises or only falls shows no branch the other way, so the model's hysteresis (the width of its "

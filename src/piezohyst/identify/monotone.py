@@ -1,0 +1,138 @@
+"""Where a record shows a stage that is not monotone: the output goes on falling while the input
+rises from the bottom of its range (or rising while it falls from the top) over a long stretch.
+
+Every model kind here has rising branches, and every compensator and feedback loop assumes that
+more command gives more displacement. A piezo stack driven too far negative (a bipolar drive
+beyond its coercive field, where electrostriction and depolarisation give the "butterfly" loop)
+is not monotone near that end: from the bottom reversal the displacement keeps falling for a
+large part of the rise. There no inverse exists and integral feedback pushes the command further
+the wrong way. This module finds such ends in a record so that identification can say so and
+``commission`` can refuse the range, naming the part of it where the stage is monotone.
+
+A short fall just after a reversal (the sensor's delay, the stage's own dynamics, a loop that
+falls a little after each reversal, creep) is not counted: the fall must last for at least
+:data:`MIN_TRAVEL` of the input's range and amount to :data:`MIN_FALL` of the output's span (and
+well over the noise), after at least two of the reversals at that end, and after most of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validation import FloatArray
+
+#: the input's travel (fraction of its range) over which the output must go on the old way
+MIN_TRAVEL = 0.15
+#: how far (fraction of the output's span) it must go the old way meanwhile
+MIN_FALL = 0.03
+#: a reversal belongs to an end when it lies within this fraction of the range from it
+END_SHARE = 0.2
+#: reversals: running extremes the input then leaves by more than this fraction of its range
+TURN_BAND = 0.05
+
+
+class NotMonotoneWarning(UserWarning):
+    """The stage is not monotone at an end of the range given (``commission`` narrowed it)."""
+
+
+@dataclass(frozen=True)
+class MonotoneRange:
+    """Where the record shows the stage monotone.
+
+    ``low`` / ``high``: the input (V) from which the output follows the input again after the
+    reversals at the bottom / top of the range (None where it does at once); ``falls``: how far
+    (in the output's unit) it went the old way at most, per end; ``reversals``: how many of the
+    reversals at each end showed it, of how many.
+    """
+
+    low: float | None
+    high: float | None
+    falls: tuple[float, float]
+    reversals: tuple[tuple[int, int], tuple[int, int]]
+
+    @property
+    def monotone(self) -> bool:
+        """True when neither end shows a long fall."""
+        return self.low is None and self.high is None
+
+    def describe(self, u_lo: float, u_hi: float) -> str:
+        """One sentence: where the stage is not monotone and the range where it is."""
+        parts = []
+        if self.low is not None:
+            parts.append(f"rising from the bottom reversals the output goes on falling (by up to {self.falls[0]:.3g} µm) "
+                         f"until the input reaches {self.low:.4g} V ({self.reversals[0][0]} of "
+                         f"{self.reversals[0][1]} reversals there)")
+        if self.high is not None:
+            parts.append(f"falling from the top reversals the output goes on rising (by up to {self.falls[1]:.3g} µm) "
+                         f"until the input reaches {self.high:.4g} V ({self.reversals[1][0]} of "
+                         f"{self.reversals[1][1]} reversals there)")
+        lo = u_lo if self.low is None else self.low
+        hi = u_hi if self.high is None else self.high
+        return ("; ".join(parts) + ": the stage is not monotone there (a loop driven beyond its range, e.g. the "
+                "butterfly loop of a stack driven too far negative), where no inverse or feedback can follow it; "
+                f"it is monotone within {lo:.4g}..{hi:.4g} V")
+
+
+def _turn_indices(u: FloatArray, band: float) -> list[int]:
+    """Indices of the input's reversals (running extremes left by more than ``band``)."""
+    turns: list[int] = []
+    if not band > 0 or u.size < 3:
+        return turns
+    ext_i, direction = 0, 0
+    for i in range(1, u.size):
+        x = u[i]
+        if direction == 0:
+            if abs(x - u[ext_i]) > band:
+                direction, ext_i = (1 if x > u[ext_i] else -1), i
+        elif (x - u[ext_i]) * direction > 0:
+            ext_i = i
+        elif abs(x - u[ext_i]) > band:
+            turns.append(ext_i)
+            direction, ext_i = -direction, i
+    return turns
+
+
+def monotone_range(u: FloatArray, y: FloatArray) -> MonotoneRange:
+    """Where ``y`` follows ``u`` the way every model here assumes (module docstring).
+
+    ``u`` and ``y`` are paired samples (a delay of a few samples does not matter: the fall must
+    last over :data:`MIN_TRAVEL` of the input's range). Records longer than 200,000 samples are
+    read every k-th sample.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    step = max(1, u.size // 200_000)
+    u, y = u[::step], y[::step]
+    lo, hi = float(np.min(u)), float(np.max(u))
+    rng = hi - lo
+    span = float(np.ptp(y))
+    none = MonotoneRange(None, None, (0.0, 0.0), ((0, 0), (0, 0)))
+    if not (rng > 0 and span > 0):
+        return none
+    noise = float(np.median(np.abs(np.diff(y, 2)))) if y.size > 3 else 0.0
+    need = max(MIN_FALL * span, 8.0 * noise)
+    turns = _turn_indices(u, TURN_BAND * rng)
+    ends: list[tuple[float | None, float, tuple[int, int]]] = []
+    for sign in (1.0, -1.0):  # +1: reversals at the bottom (the input then rises), -1: at the top
+        at_end = [(k, turns[j + 1] if j + 1 < len(turns) else u.size - 1) for j, k in enumerate(turns)
+                  if (u[k] - lo if sign > 0 else hi - u[k]) <= END_SHARE * rng]
+        hits: list[tuple[float, float]] = []
+        for k, k_next in at_end:
+            seg_y = sign * y[k:k_next + 1]
+            j = int(np.argmin(seg_y))
+            fall = float(seg_y[0] - seg_y[j])
+            travel = sign * float(u[k + j] - u[k])
+            if fall >= need and travel >= MIN_TRAVEL * rng:
+                hits.append((float(u[k + j]), fall))
+        counted = (len(hits), len(at_end))
+        if len(hits) >= 2 and 2 * len(hits) > len(at_end):
+            limit = max(h[0] for h in hits) if sign > 0 else min(h[0] for h in hits)
+            ends.append((limit, max(h[1] for h in hits), counted))
+        else:
+            ends.append((None, 0.0, counted))
+    return MonotoneRange(ends[0][0], ends[1][0], (ends[0][1], ends[1][1]), (ends[0][2], ends[1][2]))
+
+
+__all__ = ["MonotoneRange", "NotMonotoneWarning", "monotone_range", "MIN_TRAVEL", "MIN_FALL"]
