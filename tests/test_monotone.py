@@ -82,3 +82,18 @@ def test_commission_with_an_excitation_of_ones_own_refuses_and_names_the_range()
     cmd = commissioning_excitation(stage.dt, stage.u_range)
     with pytest.raises(ValueError, match=r"not monotone.*monotone within -3\d\.\d+\.\.60 V; commission\(plant, u_range=\(-2\d\.\d+, 60\)\)"):
         ph.commission(stage, excitation=cmd, tune=False)
+
+
+def test_sensor_glitches_are_not_a_fall():
+    # a monotone stage whose sensor drops 40 % of the span for two samples a sixth of a period
+    # after every bottom reversal (the input has risen by a quarter of its range): a glitch is not
+    # the stage (read raw, each would count as a fall over a quarter of the range)
+    stage = ResonantStage()
+    u, y = _loop(stage)
+    per = int(round(1.0 / stage.dt))
+    glitch = np.zeros(y.size)
+    for k in range(per // 6, y.size - 2, per):
+        glitch[k:k + 2] = -0.4 * np.ptp(y)
+    assert monotone_range(u, y + glitch).monotone
+    bu, by = _loop(ButterflyStage())
+    assert not monotone_range(bu, by + np.resize(glitch, by.size)).monotone

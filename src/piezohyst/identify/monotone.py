@@ -31,6 +31,8 @@ MIN_FALL = 0.03
 END_SHARE = 0.2
 #: reversals: running extremes the input then leaves by more than this fraction of its range
 TURN_BAND = 0.05
+#: the output is read through a running median of this many samples (glitches of up to two)
+GLITCH_WIDTH = 5
 
 
 class NotMonotoneWarning(UserWarning):
@@ -105,6 +107,10 @@ def monotone_range(u: FloatArray, y: FloatArray) -> MonotoneRange:
     y = np.asarray(y, dtype=np.float64)
     step = max(1, u.size // 200_000)
     u, y = u[::step], y[::step]
+    if y.size >= GLITCH_WIDTH:  # a sensor's glitch (a sample or two) is not a fall
+        from scipy.ndimage import median_filter
+
+        y = median_filter(y, size=GLITCH_WIDTH, mode="nearest")
     lo, hi = float(np.min(u)), float(np.max(u))
     rng = hi - lo
     span = float(np.ptp(y))
