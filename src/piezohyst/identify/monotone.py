@@ -77,7 +77,7 @@ class MonotoneRange:
                 f"it is monotone within {lo:.4g}..{hi:.4g} V")
 
 
-def _turn_indices(u: FloatArray, band: float) -> list[int]:
+def turn_indices(u: FloatArray, band: float) -> list[int]:
     """Indices of the input's reversals (running extremes left by more than ``band``)."""
     turns: list[int] = []
     if not band > 0 or u.size < 3:
@@ -119,7 +119,7 @@ def monotone_range(u: FloatArray, y: FloatArray) -> MonotoneRange:
         return none
     noise = float(np.median(np.abs(np.diff(y, 2)))) if y.size > 3 else 0.0
     need = max(MIN_FALL * span, 8.0 * noise)
-    turns = _turn_indices(u, TURN_BAND * rng)
+    turns = turn_indices(u, TURN_BAND * rng)
     ends: list[tuple[float | None, float, tuple[int, int]]] = []
     for sign in (1.0, -1.0):  # +1: reversals at the bottom (the input then rises), -1: at the top
         at_end = [(k, turns[j + 1] if j + 1 < len(turns) else u.size - 1) for j, k in enumerate(turns)

@@ -70,7 +70,7 @@ from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
 from ..models.play import play_operator
-from .monotone import monotone_range
+from .monotone import monotone_range, turn_indices
 from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals, unpack_data
 
@@ -1034,24 +1034,12 @@ END_BAND = 0.05
 
 
 def _input_reversals(u: FloatArray) -> tuple[list[float], float, float, float]:
-    """The reversals of ``u`` (the running extremes the input then leaves by more than
+    """The reversals of ``u`` (running extremes the input then leaves by more than
     :data:`END_BAND` of its range: noise and dither do not count), the range's ends and the band."""
     lo, hi = float(np.min(u)), float(np.max(u))
     band = END_BAND * (hi - lo)
-    turns: list[float] = []
-    if not band > 0:
-        return turns, lo, hi, band
-    ext, direction = float(u[0]), 0  # the running extreme, and the direction of motion since the last turn
-    for x in map(float, u[:: max(1, u.size // 100_000)]):  # (at most 10^5 points: a warning, not a fit)
-        if direction == 0:  # not yet left the start by the band
-            if abs(x - ext) > band:
-                direction, ext = (1 if x > ext else -1), x
-        elif (x - ext) * direction > 0:
-            ext = x
-        elif abs(x - ext) > band:
-            turns.append(ext)
-            direction, ext = -direction, x
-    return turns, lo, hi, band
+    v = u[:: max(1, u.size // 100_000)]  # (at most 10^5 points: a warning, not a fit)
+    return [float(v[k]) for k in turn_indices(v, band)], lo, hi, band
 
 
 def _reversals_at_the_ends_only(u: FloatArray) -> int:
