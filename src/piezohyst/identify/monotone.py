@@ -20,8 +20,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
+from .._numba import njit
 from .._validation import FloatArray
+
+IntArray = NDArray[np.int64]
 
 #: the input's travel (fraction of its range) over which the output must go on the old way
 MIN_TRAVEL = 0.15
@@ -77,23 +81,33 @@ class MonotoneRange:
                 f"it is monotone within {lo:.4g}..{hi:.4g} V")
 
 
-def turn_indices(u: FloatArray, band: float) -> list[int]:
-    """Indices of the input's reversals (running extremes left by more than ``band``)."""
-    turns: list[int] = []
-    if not band > 0 or u.size < 3:
-        return turns
-    ext_i, direction = 0, 0
-    for i in range(1, u.size):
+def turn_indices(u: FloatArray, band: float) -> IntArray:
+    """Indices of the input's reversals: running extremes the input then leaves by more than
+    ``band`` (noise and dither smaller than that do not count)."""
+    return _turn_indices(np.ascontiguousarray(u, dtype=np.float64), float(band))
+
+
+@njit
+def _turn_indices(u: FloatArray, band: float) -> IntArray:  # pragma: no cover - compiled
+    out = np.empty(u.shape[0], dtype=np.int64)
+    m = 0
+    if not band > 0.0 or u.shape[0] < 3:
+        return out[:0]
+    ext_i, direction = 0, 0  # the running extreme, and the direction of motion since the last turn
+    for i in range(1, u.shape[0]):
         x = u[i]
-        if direction == 0:
+        if direction == 0:  # not yet left the start by the band
             if abs(x - u[ext_i]) > band:
-                direction, ext_i = (1 if x > u[ext_i] else -1), i
+                direction = 1 if x > u[ext_i] else -1
+                ext_i = i
         elif (x - u[ext_i]) * direction > 0:
             ext_i = i
         elif abs(x - u[ext_i]) > band:
-            turns.append(ext_i)
-            direction, ext_i = -direction, i
-    return turns
+            out[m] = ext_i
+            m += 1
+            direction = -direction
+            ext_i = i
+    return out[:m]
 
 
 def monotone_range(u: FloatArray, y: FloatArray) -> MonotoneRange:
@@ -119,7 +133,7 @@ def monotone_range(u: FloatArray, y: FloatArray) -> MonotoneRange:
         return none
     noise = float(np.median(np.abs(np.diff(y, 2)))) if y.size > 3 else 0.0
     need = max(MIN_FALL * span, 8.0 * noise)
-    turns = turn_indices(u, TURN_BAND * rng)
+    turns = turn_indices(u, TURN_BAND * rng).tolist()
     ends: list[tuple[float | None, float, tuple[int, int]]] = []
     for sign in (1.0, -1.0):  # +1: reversals at the bottom (the input then rises), -1: at the top
         at_end = [(k, turns[j + 1] if j + 1 < len(turns) else u.size - 1) for j, k in enumerate(turns)
@@ -141,4 +155,4 @@ def monotone_range(u: FloatArray, y: FloatArray) -> MonotoneRange:
     return MonotoneRange(ends[0][0], ends[1][0], (ends[0][1], ends[1][1]), (ends[0][2], ends[1][2]))
 
 
-__all__ = ["MonotoneRange", "NotMonotoneWarning", "monotone_range", "MIN_TRAVEL", "MIN_FALL"]
+__all__ = ["MonotoneRange", "NotMonotoneWarning", "monotone_range", "turn_indices", "MIN_TRAVEL", "MIN_FALL"]

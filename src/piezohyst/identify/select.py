@@ -1011,12 +1011,13 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
     if not mono.monotone:
         out.append(f"{mono.describe(float(np.min(uu)), float(np.max(uu)))}: a model fitted over the whole range is "
                    "fitted to what no compensator can use; identify within that range")
-    if not _input_reversals(uu)[0]:
+    turns, lo, hi, band = _input_reversals(uu)
+    if not turns:
         out.append(f"the input never reverses (by more than {100 * END_BAND:g} % of its range): a record that only "
                    "rises or only falls shows no branch the other way, so the model's hysteresis (the width of its "
                    "loop) is a guess; identify on cycles up and down (a sinusoid, commissioning_excitation)")
-    ends = _reversals_at_the_ends_only(uu)
-    if ends:
+    ends = len(turns) if len(turns) >= 2 and all(not lo + band < t < hi - band for t in turns) else 0
+    if ends:  # major loops only
         out.append(f"the input reverses only at the ends of its range ({ends} reversals): loops inside it (partial "
                    f"strokes) are not identified and the model may follow them poorly; a record that also reverses "
                    f"at smaller amplitudes (a decaying sinusoid, commissioning_excitation) identifies them")
@@ -1029,7 +1030,7 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
 
 
 #: Share of the input's range a turning point may lie from its end and still count as at the end
-#: (:func:`_reversals_at_the_ends_only`); also the dead band that tells a reversal from noise.
+#: (the major-loops warning); also the dead band that tells a reversal from noise.
 END_BAND = 0.05
 
 
@@ -1038,17 +1039,7 @@ def _input_reversals(u: FloatArray) -> tuple[list[float], float, float, float]:
     :data:`END_BAND` of its range: noise and dither do not count), the range's ends and the band."""
     lo, hi = float(np.min(u)), float(np.max(u))
     band = END_BAND * (hi - lo)
-    v = u[:: max(1, u.size // 100_000)]  # (at most 10^5 points: a warning, not a fit)
-    return [float(v[k]) for k in turn_indices(v, band)], lo, hi, band
-
-
-def _reversals_at_the_ends_only(u: FloatArray) -> int:
-    """The number of reversals of ``u`` (:func:`_input_reversals`) when there are at least two and every one
-    lies within :data:`END_BAND` of the range's ends (major loops only), else 0."""
-    turns, lo, hi, band = _input_reversals(u)
-    if len(turns) < 2 or any(lo + band < t < hi - band for t in turns):
-        return 0
-    return len(turns)
+    return u[turn_indices(u, band)].tolist(), lo, hi, band
 
 
 def _falling_after_reversal(u: FloatArray, y: FloatArray, model: FloatArray, span: float) -> tuple[int, int]:
