@@ -116,8 +116,7 @@ from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
-from .identify.monotone import MonotoneRange, NotMonotoneWarning, monotone_range
-from .identify.select import rises_with_input
+from .identify.monotone import MonotoneRange, NotMonotoneWarning, monotone_range, rises_with_input
 from .models.base import Compensator, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
                     plant_u_range)

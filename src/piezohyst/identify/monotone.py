@@ -81,6 +81,14 @@ class MonotoneRange:
                 f"it is monotone within {lo:.4g}..{hi:.4g} V")
 
 
+def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
+    """False when the output falls as the input rises (negative correlation, e.g. a sensor mounted
+    the other way round): every model kind here has a rising loop."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.corrcoef(u, y)[0, 1]
+    return not r < 0
+
+
 def turn_indices(u: FloatArray, band: float) -> IntArray:
     """Indices of the input's reversals: running extremes the input then leaves by more than
     ``band`` (noise and dither smaller than that do not count)."""
@@ -155,4 +163,4 @@ def monotone_range(u: FloatArray, y: FloatArray) -> MonotoneRange:
     return MonotoneRange(ends[0][0], ends[1][0], (ends[0][1], ends[1][1]), (ends[0][2], ends[1][2]))
 
 
-__all__ = ["MonotoneRange", "NotMonotoneWarning", "monotone_range", "turn_indices", "MIN_TRAVEL", "MIN_FALL"]
+__all__ = ["MonotoneRange", "NotMonotoneWarning", "monotone_range", "rises_with_input", "turn_indices", "MIN_TRAVEL", "MIN_FALL"]

@@ -70,7 +70,7 @@ from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
 from ..models.play import play_operator
-from .monotone import monotone_range, turn_indices
+from .monotone import monotone_range, rises_with_input, turn_indices
 from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals, unpack_data
 
@@ -346,14 +346,6 @@ def _delay_search(sc: _Scorer, base: Structure, lo: int, hi: int) -> _Candidate:
             return cands[d0]
         for d in new:
             cands[d] = sc.linear(replace(base, delay=d))
-
-
-def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
-    """False when the output falls as the input rises (negative correlation, e.g. a sensor mounted
-    the other way round): every model kind here has a rising loop."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r = np.corrcoef(u, y)[0, 1]
-    return not r < 0
 
 
 @with_single_threaded_blas  # hundreds of small products: more threads only contend (piezohyst._blas)
