@@ -97,3 +97,11 @@ def test_sensor_glitches_are_not_a_fall():
     assert monotone_range(u, y + glitch).monotone
     bu, by = _loop(ButterflyStage())
     assert not monotone_range(bu, by + np.resize(glitch, by.size)).monotone
+
+
+def test_the_top_end_is_found_the_same_way():
+    # the butterfly stage mirrored (v -> -v, y -> -y): not monotone at the top, from about +36 V
+    u, y = _loop(ButterflyStage())
+    r = monotone_range(-u, -y)
+    assert r.low is None and r.high is not None and 30.0 < r.high < 40.0, r
+    assert "falling from the top reversals the output goes on rising" in r.describe(-60.0, 60.0)
