@@ -245,6 +245,9 @@ def _band_sweeps(nodes: FloatArray, j0: int, knots: FloatArray, f: FloatArray, g
 
 #: Sweeps :func:`reachable_band` makes at most (a model with rising branches needs a few).
 MAX_SWEEPS = 1000
+#: How far beyond the knots (in knot spans) ``v_range`` may reach: the band's sweeps take work in
+#: proportion to the range over the sub-step, and a damaged file's 9.2e18 V took hours.
+MAX_RANGE_SPANS = 100
 
 
 def reachable_band(knots: FloatArray, f: FloatArray, g: FloatArray, lam: float,
@@ -332,6 +335,13 @@ class GeneralizedDuhem:
             lo, hi = (as_scalar("v_range", x) for x in self.v_range)
             if not lo <= 0.0 <= hi or not hi > lo:
                 raise ValueError(f"v_range must hold 0 V (the rest state) with high > low, got {self.v_range}")
+            span = float(knots[-1] - knots[0])
+            if lo < float(knots[0]) - MAX_RANGE_SPANS * span or hi > float(knots[-1]) + MAX_RANGE_SPANS * span:
+                raise ValueError(
+                    f"v_range {lo:g}..{hi:g} V reaches more than {MAX_RANGE_SPANS} times the knots' span beyond "
+                    f"them ({float(knots[0]):g}..{float(knots[-1]):g} V): beyond the knots F and G are constant and "
+                    "the model says nothing new, while judging its invertibility over that range takes work in "
+                    "proportion to it; give the range the input really covers")
             rng = (lo, hi)
         object.__setattr__(self, "v_range", rng)
         # parameters near the float range's end (a damaged file) overflow here: then no bound
