@@ -642,3 +642,26 @@ def test_an_empty_cell_in_only_one_column_is_still_an_error(tmp_path):
     p.write_text("\n".join(rows) + "\n")
     with pytest.raises(DataError, match=r"line 12, column 'y' reads 'nan'"):
         ph.load_dataset(p)
+
+
+@pytest.mark.parametrize("spare", ["index", "text"])
+def test_large_file_with_one_spare_column_reads_the_same(tmp_path, spare):
+    """A file large enough for pandas' threaded reader (>= 5 MB) with one column more than t, u, y:
+    a numeric index is read along (pandas reads all columns in parallel, but only when not told
+    ``usecols``); a text column makes that read fail and the wanted columns are read alone. Both
+    give exactly the numbers written."""
+    n = 300_000
+    rng = np.random.default_rng(3)
+    t = np.arange(n) * 1e-4
+    u = np.round(rng.uniform(0, 100, n), 6)
+    y = np.round(rng.normal(0, 10, n), 6)
+    frame = pd.DataFrame({"t": t, "u": u, "y": y})
+    if spare == "text":
+        frame.insert(0, "status", np.where(rng.uniform(size=n) < 0.5, "ok", "hold"))
+    p = tmp_path / "big.csv"
+    frame.to_csv(p, index=spare == "index", float_format="%.10g")
+    assert p.stat().st_size >= 5 * 1024 * 1024
+    ds = ph.load_dataset(p, t_col="t", u_col="u", y_col="y")
+    np.testing.assert_array_equal(ds.u, u)
+    np.testing.assert_array_equal(ds.y, y)
+    np.testing.assert_allclose(ds.t, t, rtol=0, atol=1e-12)
