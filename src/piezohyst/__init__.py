@@ -43,7 +43,7 @@ _LAZY: dict[str, str] = {
     "ModelFileError": "modelio", "load_model": "modelio", "save_model": "modelio",
     "PSOResult": "pso", "pso_minimize": "pso",
     "Plant": "plant", "open_loop": "plant", "BufferedPlant": "plant", "CommandLimits": "plant",
-    "GuardedPlant": "plant",
+    "GuardedPlant": "plant", "SensorDropoutError": "plant", "SensorDropoutWarning": "plant",
     "ClippingWarning": "rig", "RigSettings": "rig", "VirtualRig": "rig",
     "estimate_period": "signals", "sinusoid": "signals",
     "Progress": "progress",
@@ -100,7 +100,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
                          GeneralizedDuhem, HysteresisModel,
                          OutputMap, PIStepper, PrandtlIshlinskii, Preisach, RateDependent, RateDependentPI,
                          equal_thresholds, kinds, play_operator)
-    from .plant import BufferedPlant, CommandLimits, GuardedPlant, Plant, open_loop  # noqa: F401
+    from .plant import (BufferedPlant, CommandLimits, GuardedPlant, Plant,  # noqa: F401
+                        SensorDropoutError, SensorDropoutWarning, open_loop)
     from .pso import PSOResult, pso_minimize  # noqa: F401
     from .rig import ClippingWarning, RigSettings, VirtualRig  # noqa: F401
     from .signals import estimate_period, sinusoid  # noqa: F401

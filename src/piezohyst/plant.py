@@ -29,11 +29,21 @@ take as many samples as that limit requires. At sample rates below 2 kHz the def
 the guard slowed a 5 Hz tracking run over 80 % of the range (8.7 % e_max with the feedforward
 alone, and with feedback the loop wound up against the slowed command until it oscillated
 between the amplifier's limits).
+
+**Missing measurements.** A sensor drops a sample now and then (an over-range reading, a lost
+packet), and the plant then answers NaN or inf. A run rides through such dropouts: a loop holds
+the last measurement (:class:`SensorDropouts`), an offline record (an identification run, a
+played table) is bridged by linear interpolation (:func:`bridge_dropouts`); either is counted
+(``sensor_dropouts`` in :meth:`GuardedPlant.counts`) and warned about once
+(:class:`SensorDropoutWarning`). A gap longer than :data:`SENSOR_GAP_S` (and
+:data:`SENSOR_GAP_MIN_SAMPLES`), or more than :data:`SENSOR_DROPOUT_SHARE` of the samples missing,
+is a failing sensor: the run stops with a :class:`SensorDropoutError` that says where.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -148,14 +158,132 @@ def measured(y: Any) -> float:
     return float(a.reshape(()))
 
 
+#: The longest run of missing measurements (seconds) a run rides through; longer is a lost sensor.
+SENSOR_GAP_S = 1e-3
+#: ... but never fewer samples than this (at low sample rates).
+SENSOR_GAP_MIN_SAMPLES = 2
+#: The share of a run's samples that may be missing (past the first few); more is a failing sensor.
+SENSOR_DROPOUT_SHARE = 0.01
+#: Missing samples always allowed before the share counts (a run's first samples).
+SENSOR_DROPOUT_ALLOWANCE = 10
+
+
+class SensorDropoutError(RuntimeError):
+    """The plant's measurements went missing (NaN or inf) for too long or too often to go on."""
+
+
+class SensorDropoutWarning(UserWarning):
+    """The plant answered NaN or inf for some samples; they were held or bridged (module docstring)."""
+
+
+def _max_gap(dt: float) -> int:
+    return max(SENSOR_GAP_MIN_SAMPLES, int(round(SENSOR_GAP_S / dt)))
+
+
+def _too_many(count: int, samples: int) -> bool:
+    return count > max(SENSOR_DROPOUT_ALLOWANCE, SENSOR_DROPOUT_SHARE * samples)
+
+
+class SensorDropouts:
+    """Missing measurements of a per-sample run: each one is replaced by the last measurement
+    (what a sample-and-hold gives a loop), counted, and warned about once; a gap longer than
+    :data:`SENSOR_GAP_S` or too many of them raise :class:`SensorDropoutError`.
+
+    >>> d = SensorDropouts(1e-4, "the plant")
+    >>> d.take(1.0), d.take(float("nan")), d.take(2.0), d.count      # doctest: +SKIP
+    (1.0, 1.0, 2.0, 1)
+    """
+
+    def __init__(self, dt: float, who: str):
+        self.dt = float(dt)
+        self.who = who
+        self.max_gap = _max_gap(self.dt)
+        self.count = 0
+        self.samples = 0
+        self.first: int | None = None
+        self._gap = 0
+        self._held: float | None = None
+
+    def hold(self, y: float) -> None:
+        """The last valid measurement is ``y`` (taken outside :meth:`take`, e.g. from a played table)."""
+        if math.isfinite(y):
+            self._held = float(y)
+            self._gap = 0
+
+    def take(self, y: float) -> float:
+        """The measurement to use for sample ``y`` (the plant's answer, already a float)."""
+        k = self.samples
+        self.samples += 1
+        if math.isfinite(y):
+            self._gap = 0
+            self._held = y
+            return y
+        self.count += 1
+        self._gap += 1
+        if self.first is None:
+            self.first = k
+            warnings.warn(f"{self.who} returned {y} instead of a measurement at sample {k} "
+                          f"(t = {k * self.dt:.6g} s of this run): a sensor dropout? It is held at the last "
+                          "measurement; sensor_dropouts in the run's safety counts says how many there were",
+                          SensorDropoutWarning, stacklevel=4)
+        if self._held is None:
+            raise SensorDropoutError(f"{self.who} returned {y} instead of a measurement at sample {k}, before "
+                                     "any valid one: check the sensor and its range")
+        if self._gap > self.max_gap:
+            raise SensorDropoutError(
+                f"{self.who} returned no valid measurement (NaN or inf) for {self._gap} samples in a row, "
+                f"from sample {k - self._gap + 1} (t = {(k - self._gap + 1) * self.dt:.6g} s of this run): more "
+                f"than the {self.max_gap} samples ({SENSOR_GAP_S * 1e3:g} ms) a run rides through. Is the "
+                "sensor connected and within its range? The run stopped")
+        if _too_many(self.count, self.samples):
+            raise SensorDropoutError(
+                f"{self.who} returned no valid measurement at {self.count} of {self.samples} samples (first at "
+                f"sample {self.first}): more than {SENSOR_DROPOUT_SHARE:.0%} missing is a failing sensor. The run "
+                "stopped")
+        return self._held
+
+
+def bridge_dropouts(y: FloatArray, dt: float, who: str) -> tuple[FloatArray, int]:
+    """A recorded run with its missing samples (NaN or inf) filled by linear interpolation
+    between their neighbours (the ends held), and how many there were; warned about once
+    (:class:`SensorDropoutWarning`). A gap longer than :data:`SENSOR_GAP_S` or too many of them
+    raise :class:`SensorDropoutError`."""
+    bad = ~np.isfinite(y)
+    count = int(bad.sum())
+    if count == 0:
+        return y, 0
+    if count == y.size:
+        raise SensorDropoutError(f"{who} returned no valid measurement at all ({y.size} samples of NaN or inf)")
+    edges = np.diff(np.concatenate([[0], bad.view(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    longest = int(np.argmax(ends - starts))
+    gap = int(ends[longest] - starts[longest])
+    limit = _max_gap(dt)
+    if gap > limit:
+        raise SensorDropoutError(
+            f"{who} returned no valid measurement (NaN or inf) for {gap} samples in a row, from sample "
+            f"{int(starts[longest])} (t = {starts[longest] * dt:.6g} s of the run): more than the {limit} samples "
+            f"({SENSOR_GAP_S * 1e3:g} ms) a run rides through. Is the sensor connected and within its range?")
+    if _too_many(count, y.size):
+        raise SensorDropoutError(
+            f"{who} returned no valid measurement at {count} of {y.size} samples (first at sample "
+            f"{int(starts[0])}): more than {SENSOR_DROPOUT_SHARE:.0%} missing is a failing sensor")
+    warnings.warn(f"{who} returned NaN or inf instead of a measurement at {count} of {y.size} samples (first at "
+                  f"sample {int(starts[0])}, t = {starts[0] * dt:.6g} s): sensor dropouts? They are bridged by "
+                  "linear interpolation", SensorDropoutWarning, stacklevel=3)
+    idx = np.arange(y.size)
+    out = y.copy()
+    out[bad] = np.interp(idx[bad], idx[~bad], y[~bad])
+    return out, count
+
+
 def play_checked(plant: Any, u: FloatArray) -> FloatArray:
-    """``plant.play(u)`` with its answer checked: finite, one value per command."""
+    """``plant.play(u)`` with its answer checked: one value per command, sensor dropouts
+    bridged (:func:`bridge_dropouts`)."""
     y = np.asarray(plant.play(np.ascontiguousarray(u, dtype=np.float64)), dtype=np.float64).ravel()
     if y.size != u.size:
         raise ValueError(f"the plant's play() returned {y.size} values for a table of {u.size} commands")
-    if not np.all(np.isfinite(y)):
-        raise ValueError("the plant's play() returned non-finite measurements")
-    return y
+    return bridge_dropouts(y, float(plant.dt), f"the plant's play() ({type(plant).__name__})")[0]
 
 
 def open_loop(plant: Any, u: Any) -> Dataset:
@@ -168,7 +296,8 @@ def open_loop(plant: Any, u: Any) -> Dataset:
     x = as_signal("u", u)
     if plant_mode(plant) == "step":
         plant.reset()
-        y = np.array([measured(plant.step(v)) for v in x])
+        y = bridge_dropouts(np.array([measured(plant.step(v)) for v in x]), dt,
+                            f"the plant's step() ({type(plant).__name__})")[0]
         how = "step"
     else:
         y = play_checked(plant, x)
@@ -313,6 +442,8 @@ class GuardedPlant:
         self.largest_step = 0.0
         self.last_saturation = 0
         self._tol = 1e-9 * limits.span
+        self.dropouts = SensorDropouts(self.dt, f"the plant ({type(plant).__name__})")
+        self.bridged = 0  # missing samples filled in played records
 
     @property
     def u_range(self) -> tuple[float, float]:
@@ -372,14 +503,23 @@ class GuardedPlant:
         """Guard ``u`` and apply it for one sample (a :class:`Plant`); the measured µm."""
         if self.mode != "step":
             raise TypeError("this plant plays tables (BufferedPlant): it has no per-sample step")
-        return measured(self.plant.step(self._guard(u)))
+        return self.dropouts.take(measured(self.plant.step(self._guard(u))))
 
     def play(self, u: Any) -> FloatArray:
-        """Guard the table ``u`` and play it (either protocol: a Plant steps through it)."""
+        """Guard the table ``u`` and play it (either protocol: a Plant steps through it); missing
+        measurements bridged (:func:`bridge_dropouts`)."""
         sent = self.guard_table(u)
         if self.mode == "buffered":
-            return play_checked(self.plant, sent)
-        return np.array([measured(self.plant.step(v)) for v in sent])
+            y = np.asarray(self.plant.play(np.ascontiguousarray(sent)), dtype=np.float64).ravel()
+            if y.size != sent.size:
+                raise ValueError(f"the plant's play() returned {y.size} values for a table of {sent.size} commands")
+        else:
+            y = np.array([measured(self.plant.step(v)) for v in sent])
+        y, missing = bridge_dropouts(y, self.dt, f"the plant ({type(self.plant).__name__})")
+        self.bridged += missing
+        if y.size:
+            self.dropouts.hold(float(y[-1]))
+        return y
 
     def ramp_to(self, target: float, *, share: float = 0.5) -> FloatArray:
         """Move the command smoothly from where it is to ``target`` (clipped to the range): a
@@ -391,7 +531,8 @@ class GuardedPlant:
     def counts(self) -> dict[str, Any]:
         """What the guard counted: commands sent, clipped to the range, slowed to the step limit, the largest step sent (V)."""
         return {"commands_sent": self.sent, "clipped": self.clipped, "slew_limited": self.slew_limited,
-                "largest_step_V": self.largest_step, **self.limits.to_dict()}
+                "largest_step_V": self.largest_step, "sensor_dropouts": self.dropouts.count + self.bridged,
+                **self.limits.to_dict()}
 
 
 def check_table(u: Any, limits: CommandLimits, *, start: float | None = None) -> dict[str, float]:

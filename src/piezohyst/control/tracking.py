@@ -26,7 +26,7 @@ import numpy as np
 
 from .._validation import FloatArray, as_scalar, as_signal
 from ..signals import cycles_after_first, estimate_period
-from ..plant import measured
+from ..plant import SensorDropouts, measured
 
 
 class UnstableLoopError(RuntimeError):
@@ -422,6 +422,7 @@ def track(
     ff_step = feedforward.step if feedforward is not None else None
     fb_step = feedback.step if feedback is not None else None
     pstep = plant.step
+    dropouts = SensorDropouts(dt, f"the plant ({type(plant).__name__})")
     for k in range(0 if not compiled else n, n):
         rk = r[k]
         fb = fb_step(rk - y_prev, sat) if fb_step is not None else 0.0
@@ -432,7 +433,7 @@ def track(
         else:
             uk = ff_step(rk) + fb
         sat = watch.command(k, uk)
-        yk = measured(pstep(uk))
+        yk = dropouts.take(measured(pstep(uk)))
         u[k] = uk
         y[k] = yk
         watch.output(k, yk, y)
@@ -444,7 +445,7 @@ def track(
                           period=period if period is not None else estimate_period(r),
                           clipped=clipped, label=label,
                           info={"mode": "step", "feedback_at": feedback_at if feedback is not None else None,
-                                "feedback": feedback is not None})
+                                "feedback": feedback is not None, "sensor_dropouts": dropouts.count})
 
 
 def _stream(stepper: Any, r: FloatArray) -> FloatArray:
