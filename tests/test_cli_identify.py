@@ -142,3 +142,23 @@ def test_identify_reads_the_rigs_own_loops_file(tmp_path, capsys):
     assert "holds 2 records (2hz, 4hz)" in err and "(--u-col, --y-col)" in err and "in Python" not in err
     assert main(["identify", str(three / "rig_loops.csv"), "--model", "pi", "--u-col", "u_4Hz_V",
                  "--y-col", "y_4Hz_um"]) == 0
+
+
+def test_identify_bridges_isolated_glitches_and_says_so(tmp_path, capsys):
+    """A record with a few gross glitches (one sample off by half the span): the search bridges
+    them and the report warns; --keep-glitches fits them as they are (and so fits worse)."""
+    rng = np.random.default_rng(5)
+    true = ph.Preisach(lo=0.0, hi=100.0, weights=rng.random(ph.models.preisach.grid_size(6)) * 0.01, slope=0.02)
+    t = np.arange(6000) * 1e-3
+    u = 50.0 - 50.0 * np.cos(2 * np.pi * t) * np.linspace(1.0, 0.3, t.size)
+    y = true.simulate(u) + 0.002 * rng.standard_normal(u.size)
+    y[[700, 2300, 4100, 5200]] += 0.5 * np.ptp(y)
+    path = tmp_path / "rec.csv"
+    np.savetxt(path, np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+    got = {}
+    for flag in ([], ["--keep-glitches"]):
+        assert main(["identify", str(path), "--model", "preisach", "--delay", "0", *flag, "--json"]) == 0
+        got[bool(flag)] = json.loads(capsys.readouterr().out)
+    assert any("4 isolated glitches" in w and "sample 700" in w for w in got[False]["warnings"])
+    assert not any("glitch" in w for w in got[True]["warnings"])
+    assert got[False]["fit"]["rmse"] < 0.5 * got[True]["fit"]["rmse"]

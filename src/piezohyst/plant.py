@@ -189,8 +189,11 @@ class SensorDropouts:
     (what a sample-and-hold gives a loop), counted, and warned about once; a gap longer than
     :data:`SENSOR_GAP_S` or too many of them raise :class:`SensorDropoutError`.
 
+    >>> import warnings
     >>> d = SensorDropouts(1e-4, "the plant")
-    >>> d.take(1.0), d.take(float("nan")), d.take(2.0), d.count      # doctest: +SKIP
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore", SensorDropoutWarning)
+    ...     d.take(1.0), d.take(float("nan")), d.take(2.0), d.count
     (1.0, 1.0, 2.0, 1)
     """
 

@@ -145,7 +145,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
 def _select(ph: Any, train: Any, kind: str, args: argparse.Namespace, vsets: list[Any], show: bool) -> Any:
     """``fit_model`` with a spinner naming the stage (on stderr; nothing with --json)."""
     opts = dict(validation=vsets or None, delay=args.delay, n=args.n, seed=args.seed,
-                bouc_wen_options={"max_iter": args.iterations, "polish": not args.no_polish}, warmup=args.warmup)
+                bouc_wen_options={"max_iter": args.iterations, "polish": not args.no_polish}, warmup=args.warmup,
+                glitches="keep" if args.keep_glitches else "bridge")
     dt = train.dt
     if not show:
         return ph.fit_model(train.u, train.y, dt, kind, **opts)
@@ -238,6 +239,9 @@ def register(sub: Any, add: Any) -> None:
                    help="samples at the start of the training part that only set the model's state (e.g. a "
                    "conditioning sweep over the whole range): run through, neither fitted nor scored "
                    "(--method select; default 0)")
+    p.add_argument("--keep-glitches", action="store_true",
+                   help="fit isolated gross glitches of the output as they are (default, with --method select: "
+                   "one or two samples off their neighbours by more than 5 %% of the span are bridged, with a warning)")
     p.add_argument("--validate", type=sample_range, default=(None, None), metavar="START:STOP",
                    help="choose on, and report the error on, these samples of the same file (simulated from its start)")
     p.add_argument("--validate-data", action="append", metavar="FILE",

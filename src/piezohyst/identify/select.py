@@ -70,6 +70,8 @@ from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
 from ..models.play import play_operator
+from .glitches import SPAN_SHARE as GLITCH_SPAN_SHARE
+from .glitches import bridge_glitches, find_glitches
 from .monotone import monotone_range, rises_with_input, turn_indices
 from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals, unpack_data
@@ -356,7 +358,7 @@ def fit_model(
     taus: Sequence[float] | None = None, input_taus: Sequence[float] | None = None,
     max_delay: int | None = None, statics: Sequence[str] = ("pi", "preisach", "bouc-wen", "duhem"),
     seed: Any = 0, bouc_wen_options: dict[str, Any] | None = None,
-    progress: Callable[[str], None] | None = None, warmup: int = 0,
+    progress: Callable[[str], None] | None = None, warmup: int = 0, glitches: str = "bridge",
 ) -> FitResult:
     """Identify the model that predicts held-out data best (module docstring).
 
@@ -403,6 +405,11 @@ def fit_model(
         stage's). The hold-out part and ``n_fit`` count from after them; the Bouc-Wen (PSO)
         candidate starts from rest after them. Rounded up to the search's row stride;
         ``info["warmup"]`` says what was used.
+    glitches : {"bridge", "keep"}
+        Isolated gross glitches of y (one or two samples off their neighbours by more than 5 %
+        of the span and 10x the noise: :mod:`piezohyst.identify.glitches`) are bridged by
+        interpolation before anything is fitted, and a warning says how many (``"bridge"``,
+        the default); ``"keep"`` fits y as it is. ``info["glitches_bridged"]`` counts them.
 
     Returns
     -------
@@ -414,6 +421,11 @@ def fit_model(
     t0 = time.perf_counter()
     u, y, dt = unpack_data(u, y, dt)
     us, ys = paired_signals(u, y, 0)
+    if glitches not in ("bridge", "keep"):
+        raise ValueError(f"glitches must be 'bridge' or 'keep', got {glitches!r}")
+    spikes = find_glitches(ys) if glitches == "bridge" else np.empty(0, dtype=np.int64)
+    if spikes.size:
+        ys = bridge_glitches(ys, spikes)
     if not rises_with_input(us, ys):
         raise ValueError("the output falls as the input rises (negative correlation): negate y first")
     dt = as_scalar("dt", dt, positive=True) if dt is not None else None
@@ -549,8 +561,14 @@ def fit_model(
     if flat:
         final.info["refused_not_invertible"] = flat
     final.info["chosen"] = best.label
+    final.info["glitches_bridged"] = int(spikes.size)
     final.method = f"selection on held-out data: {best.label}"
     final.warnings = _quality_warnings(final, us, ys, dt, best, span, vsets, n_fit, sc) + final.warnings
+    if spikes.size:
+        final.warnings.append(
+            f"y has {spikes.size} isolated glitch{'es' if spikes.size > 1 else ''} (one or two samples more than "
+            f"{100 * GLITCH_SPAN_SHARE:g} % of the span off their neighbours, first at sample {int(spikes[0])}): a "
+            "sensor's miscounts or dropouts? Bridged by interpolation before fitting (glitches='keep' fits them)")
     if ranges.single_rate_hz is not None:
         final.warnings.append(
             f"the training record has one rate ({ranges.single_rate_hz:.3g} Hz: at least {SINGLE_RATE_SHARE:.0%} of "
