@@ -109,6 +109,21 @@ def test_commission_works_on_any_plant():
     assert out.rmse < 1e-3
 
 
+def test_commission_says_when_the_sample_rate_cannot_carry_its_excitation():
+    """dt given in the wrong unit: 0.1 (meant as ms) is 10 Hz sampling, too slow for the 1 Hz
+    excitation (before: an IndexError from an empty segment at dt >= 1 s); 1e-9 would be 10^10
+    samples (before: an error about a sinusoid's cycles). A slow but usable rate commissions."""
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(20, 100.0), np.linspace(0.03, -0.0005, 20))
+    for dt, what in ((0.1, "10 Hz sampling.*at least 20 Hz.*Is dt in seconds"),
+                     (1.0, "1 Hz sampling.*at least 20 Hz"), (1e-9, r"1.05e\+10 samples.*Is dt in seconds")):
+        with pytest.raises(ValueError, match=what):
+            ph.commission(PIPlant(true, dt=dt), u_range=(-50.0, 100.0), tune=False)
+    plant = PIPlant(true, dt=0.05)
+    ctl = ph.commission(plant, u_range=(-50.0, 100.0), tune=False)
+    out = ctl.track(ph.sinusoid(0.5, 3, 0.5, 2.5, plant.dt), feedback=False, learning=False)
+    assert out.rmse < 1e-3
+
+
 def test_commission_refuses_a_non_plant():
     with pytest.raises(TypeError, match="Plant protocol"):
         ph.commission(object())
