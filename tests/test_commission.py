@@ -177,3 +177,17 @@ def test_learning_that_drives_the_loop_to_the_limits_is_dropped_not_fatal():
     assert alone.info["learning_stopped"] is None
     slow = ctl.track(ph.sinusoid(1.0, 4, lo, hi, stage.dt), period=500)
     assert slow.info["learning_stopped"] is None and slow.e_max_percent < 3.0
+
+
+def test_a_reference_beyond_the_stroke_is_said_to_be_the_ranges_error(rig_and_controller):
+    """A reference that asks for more than the stage reaches within the amplifier's range: the
+    guard clips the command for much of the run, and track says so with the figures (before:
+    e_max of 30 % and nothing said). Within the stroke nothing is said."""
+    rig, ctl = rig_and_controller
+    top = float(np.max(ctl.identification.y))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ctl.track(ref(1.0, rig, cycles=2), feedback=False, learning=False)
+    with pytest.warns(ph.ClippingWarning, match=r"clipped to the amplifier's range \(0 to 100 V\).*the stage reached"):
+        out = ctl.track(ph.sinusoid(1.0, 2, 0.25, 1.6 * top, rig.dt), feedback=False, learning=False)
+    assert out.info["safety"]["clipped"] > 0.05 * out.info["safety"]["commands_sent"]

@@ -211,6 +211,30 @@ def _warn_if_slowed(res: TrackingResult, what: str) -> None:
                       f"with a larger max_step_fraction", ClippingWarning, stacklevel=3)
 
 
+#: Share of a run's commands that may end at the amplifier's range before :func:`_warn_if_clipped` says so.
+CLIPPED_SHARE = 0.05
+
+
+def _warn_if_clipped(res: TrackingResult, what: str) -> None:
+    """A :class:`~piezohyst.ClippingWarning` when more than :data:`CLIPPED_SHARE` of a run's
+    commands were clipped to the amplifier's range: the reference then asks for displacements
+    the stage does not reach within it, and the error says more about the range than about the
+    controller (a reference to 160 % of the stroke: 30 % e_max, and nothing said)."""
+    safety = res.info.get("safety") or {}
+    sent, clipped = int(safety.get("commands_sent", 0)), int(safety.get("clipped", 0))
+    if sent and clipped > CLIPPED_SHARE * sent:
+        from .rig import ClippingWarning
+
+        y = res.output[np.isfinite(res.output)]
+        reached = f"{float(np.min(y)):.4g} to {float(np.max(y)):.4g} um" if y.size else "nothing"
+        warnings.warn(f"{what}: {clipped} of {sent} commands were clipped to the amplifier's range "
+                      f"({safety.get('u_low_V', float('nan')):g} to {safety.get('u_high_V', float('nan')):g} V): the "
+                      f"reference asks for {float(np.min(res.reference)):.4g} to {float(np.max(res.reference)):.4g} um, "
+                      f"the stage reached {reached} in this run; the error there is the range's, not the "
+                      "controller's. Keep the reference within what the stage reaches, or widen u_range if the "
+                      "amplifier allows", ClippingWarning, stacklevel=3)
+
+
 def _limits(dt: float, u_range: Any, max_step_fraction: float | None, rest: float | None) -> CommandLimits:
     """The safe layer's limits for ``u_range`` at sample period ``dt``: the step limit given, or
     :func:`~piezohyst.plant.default_step_fraction` of ``dt``."""
@@ -478,6 +502,7 @@ class CommissionedController:
             res = self._track_step(r, feedback=True if feedback is None else bool(feedback), learning=learning,
                                    period=period, label=label, conditioning=cond)
         _warn_if_slowed(res, "track")
+        _warn_if_clipped(res, "track")
         return res
 
     def _cutoff(self, per: int | None, dt: float) -> float:
