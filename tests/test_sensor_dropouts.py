@@ -168,3 +168,54 @@ def test_commission_rides_through_dropouts_of_a_zoo_stage():
         out = ctl.track(ph.sinusoid(1.0, 3, lo, hi, stage.dt), feedback=False, learning=False,
                         period=int(round(1.0 / stage.dt)))
     assert out.e_max_percent < 0.5
+
+
+def test_a_loop_holds_a_glitch_but_takes_a_new_level_that_stays():
+    d = SensorDropouts(1e-4, "the plant", max_jump=1.0)
+    with pytest.warns(SensorDropoutWarning, match="jumped by 50 um"):
+        got = [d.take(y) for y in (0.0, 0.5, 50.5, 0.6, 0.7)]
+    assert got == [0.0, 0.5, 0.5, 0.6, 0.7] and d.glitches == 1 and d.count == 0
+    d = SensorDropouts(1e-4, "the plant", max_jump=1.0)
+    with pytest.warns(SensorDropoutWarning):
+        got = [d.take(y) for y in (0.0, 5.0, 5.1, 5.2, 5.3)]  # the stage did move: taken on the third sample
+    assert got == [0.0, 0.0, 0.0, 5.2, 5.3] and d.glitches == 2
+
+
+class Spiky:
+    """A zoo stage whose sensor adds ``size`` µm to one sample in ``every``."""
+
+    def __init__(self, stage, every, size):
+        self.stage, self.every, self.size = stage, every, size
+        self.dt, self.u_range = stage.dt, stage.u_range
+        self.k = 0
+
+    def reset(self):
+        self.stage.reset()
+        self.k = 0
+
+    def step(self, u):
+        self.k += 1
+        return self.stage.step(u) + (self.size if self.k % self.every == 0 else 0.0)
+
+
+def test_commission_and_track_hold_sensor_glitches():
+    """The zoo's Maxwell-slip stage with a sensor that adds the whole span to one sample in 2000:
+    with feedback and learning, 0.19 % e_max at 1 Hz (scored without the glitches themselves), as
+    without them; before, the integral fed on the glitches (9.4 %) and the tuning settled on a
+    twentieth of the gain."""
+    from .plants.zoo import zoo
+    from .test_zoo import steady_range
+
+    stage = zoo(seed=0)[0]
+    lo, hi = steady_range(stage)
+    plant = Spiky(stage, 2000, hi - lo)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SensorDropoutWarning)  # the fit's bridging and the tuning's holds
+        ctl = ph.commission(plant)
+    per = int(round(1.0 / stage.dt))
+    with pytest.warns(SensorDropoutWarning, match="jumped by"):
+        out = ctl.track(ph.sinusoid(1.0, 12, lo, hi, stage.dt), period=per)
+    assert out.info["safety"]["sensor_glitches"] >= 50
+    e = (out.output - out.reference)[-3 * per:]
+    e = e[np.abs(e) < 0.5 * (hi - lo)]  # the glitches as measured are not the stage's error
+    assert 100 * np.max(np.abs(e)) / (hi - lo) < 0.5

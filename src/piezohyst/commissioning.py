@@ -211,6 +211,11 @@ def _warn_if_slowed(res: TrackingResult, what: str) -> None:
                       f"with a larger max_step_fraction", ClippingWarning, stacklevel=3)
 
 
+#: A loop holds a measurement that changes in one sample by more than this many times the largest
+#: change of the identification run (a sensor glitch, :attr:`CommissionedController.max_jump`) ...
+GLITCH_JUMP_FACTOR = 10.0
+#: ... and more than this share of its span.
+GLITCH_JUMP_SPAN = 0.2
 #: Share of a run's commands that may end at the amplifier's range before :func:`_warn_if_clipped` says so.
 CLIPPED_SHARE = 0.05
 
@@ -409,6 +414,20 @@ class CommissionedController:
         """``"step"`` (a per-sample loop: feedback possible) or ``"buffered"`` (tables only)."""
         return plant_mode(self.plant)
 
+    @property
+    def max_jump(self) -> float | None:
+        """The most (µm) a measurement may change in one sample before a loop holds it as a sensor
+        glitch (:class:`~piezohyst.plant.SensorDropouts`): :data:`GLITCH_JUMP_FACTOR` times the
+        largest change in the identification run (its glitches bridged), and at least
+        :data:`GLITCH_JUMP_SPAN` of its span. None without an identification run."""
+        ds = getattr(self, "identification", None)
+        if ds is None or len(ds) < 3:
+            return None
+        from .identify.glitches import bridge_glitches, find_glitches
+
+        y = bridge_glitches(ds.y, find_glitches(ds.y))
+        return max(GLITCH_JUMP_FACTOR * float(np.max(np.abs(np.diff(y)))), GLITCH_JUMP_SPAN * float(np.ptp(y)))
+
     def _limits(self) -> CommandLimits:
         if self.limits is None:
             rng = plant_u_range(self.plant) or (0.0, 100.0)
@@ -439,7 +458,7 @@ class CommissionedController:
         again with other ``options``. Returns what the safe layer counted during the experiments."""
         if self.mode != "step":
             raise ValueError(NO_LOOP.replace("no feedback: ", "cannot tune feedback: "))
-        tguard = GuardedPlant(self.plant, self._limits())
+        tguard = GuardedPlant(self.plant, self._limits(), max_jump=self.max_jump)
         self.tuning = tune_integral_safely(tguard, self.feedforward(), self.model, delay=self.delay,
                                            level=float(np.median(self.identification.y)),
                                            volts_per_um=self.volts_per_um, options=options,
@@ -536,7 +555,7 @@ class CommissionedController:
         plant = self.plant
         dt = plant.dt
         limits = self._limits()
-        guard = GuardedPlant(plant, limits)
+        guard = GuardedPlant(plant, limits, max_jump=self.max_jump)
         n = r.size
         per = period if period is not None else estimate_period(r)
         learn = learning and per is not None and n >= 2 * per

@@ -37,7 +37,10 @@ played table) is bridged by linear interpolation (:func:`bridge_dropouts`); eith
 (``sensor_dropouts`` in :meth:`GuardedPlant.counts`) and warned about once
 (:class:`SensorDropoutWarning`). A gap longer than :data:`SENSOR_GAP_S` (and
 :data:`SENSOR_GAP_MIN_SAMPLES`), or more than :data:`SENSOR_DROPOUT_SHARE` of the samples missing,
-is a failing sensor: the run stops with a :class:`SensorDropoutError` that says where.
+is a failing sensor: the run stops with a :class:`SensorDropoutError` that says where. Given the
+most the stage moves in one sample (``max_jump``, which ``commission`` takes from its
+identification run), a loop also holds a measurement that jumps further, for at most
+:data:`GLITCH_HOLD_SAMPLES` samples (a sensor glitch: counted as ``sensor_glitches``).
 """
 
 from __future__ import annotations
@@ -166,6 +169,9 @@ SENSOR_GAP_MIN_SAMPLES = 2
 SENSOR_DROPOUT_SHARE = 0.01
 #: Missing samples always allowed before the share counts (a run's first samples).
 SENSOR_DROPOUT_ALLOWANCE = 10
+#: A measurement that jumps further than a loop's ``max_jump`` in one sample is held for at most
+#: this many samples (a glitch); one still there after them is a new level, taken.
+GLITCH_HOLD_SAMPLES = 2
 
 
 class SensorDropoutError(RuntimeError):
@@ -197,15 +203,19 @@ class SensorDropouts:
     (1.0, 1.0, 2.0, 1)
     """
 
-    def __init__(self, dt: float, who: str):
+    def __init__(self, dt: float, who: str, max_jump: float | None = None):
         self.dt = float(dt)
         self.who = who
         self.max_gap = _max_gap(self.dt)
+        self.max_jump = max_jump if max_jump is not None and max_jump > 0 and math.isfinite(max_jump) else None
         self.count = 0
         self.samples = 0
         self.first: int | None = None
+        self.glitches = 0
         self._gap = 0
+        self._jumped = 0
         self._held: float | None = None
+        self._warned_glitch = False
 
     def hold(self, y: float) -> None:
         """The last valid measurement is ``y`` (taken outside :meth:`take`, e.g. from a played table)."""
@@ -219,6 +229,21 @@ class SensorDropouts:
         self.samples += 1
         if math.isfinite(y):
             self._gap = 0
+            if (self.max_jump is not None and self._held is not None and abs(y - self._held) > self.max_jump
+                    and self._jumped < GLITCH_HOLD_SAMPLES):
+                # a jump no stage makes in one sample: held while it lasts at most GLITCH_HOLD_SAMPLES
+                # (a glitch); a new level that stays is taken (the stage did move)
+                self._jumped += 1
+                self.glitches += 1
+                if not self._warned_glitch:
+                    self._warned_glitch = True
+                    warnings.warn(f"{self.who}'s measurement jumped by {y - self._held:.4g} um in one sample at "
+                                  f"sample {k} (t = {k * self.dt:.6g} s of this run), more than the "
+                                  f"{self.max_jump:.4g} um the stage moves in one: a sensor glitch? It is held at the "
+                                  "last measurement; sensor_glitches in the run's safety counts says how many there "
+                                  "were", SensorDropoutWarning, stacklevel=4)
+                return self._held
+            self._jumped = 0
             self._held = y
             return y
         self.count += 1
@@ -431,9 +456,13 @@ class GuardedPlant:
     limits : CommandLimits
     last : float, optional
         The command the plant holds now (default ``limits.rest``: a plant not driven yet).
+    max_jump : float, optional
+        The most (µm) the stage's measurement can change in one sample: a larger jump in a
+        per-sample run is held as a glitch (:class:`SensorDropouts`). Default: no such check.
     """
 
-    def __init__(self, plant: Any, limits: CommandLimits, *, last: float | None = None):
+    def __init__(self, plant: Any, limits: CommandLimits, *, last: float | None = None,
+                 max_jump: float | None = None):
         self.dt = check_plant(plant)
         self.plant = plant
         self.mode = plant_mode(plant)
@@ -445,7 +474,7 @@ class GuardedPlant:
         self.largest_step = 0.0
         self.last_saturation = 0
         self._tol = 1e-9 * limits.span
-        self.dropouts = SensorDropouts(self.dt, f"the plant ({type(plant).__name__})")
+        self.dropouts = SensorDropouts(self.dt, f"the plant ({type(plant).__name__})", max_jump)
         self.bridged = 0  # missing samples filled in played records
 
     @property
@@ -535,6 +564,7 @@ class GuardedPlant:
         """What the guard counted: commands sent, clipped to the range, slowed to the step limit, the largest step sent (V)."""
         return {"commands_sent": self.sent, "clipped": self.clipped, "slew_limited": self.slew_limited,
                 "largest_step_V": self.largest_step, "sensor_dropouts": self.dropouts.count + self.bridged,
+                "sensor_glitches": self.dropouts.glitches,
                 **self.limits.to_dict()}
 
 
