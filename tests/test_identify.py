@@ -103,6 +103,34 @@ def test_stacked_bounded_least_squares_equal_one_by_one(rng):
     assert at_bound >= 4  # the active-set fallback was needed
 
 
+def test_a_schur_complement_lost_to_rounding_falls_back_to_the_full_factor(rng, monkeypatch):
+    """Found on a record that starts mid-cycle: eliminating the free variables of a nearly
+    collinear design left a Schur complement with a negative diagonal beyond the jitter's reach,
+    and fit_model failed with "the regressors' Gram matrix is not positive definite even with
+    jitter". The same problem is then solved with the full factor: the same optimum."""
+    from scipy.optimize import lsq_linear
+
+    import piezohyst.identify.lsq as lsq
+
+    a = rng.normal(size=(300, 7))
+    y = a @ rng.normal(0.0, 2.0, 7)
+    lb = np.r_[np.zeros(5), -np.inf, -np.inf]
+    want = lsq_linear(a, y, bounds=(lb, np.full(7, np.inf)), method="bvls", tol=1e-14).x
+    calls = {"n": 0}
+    real = lsq._cholesky
+
+    def failing_schur(g):
+        calls["n"] += 1
+        if calls["n"] == 3:  # the full factor, the free block's, then the Schur complement's
+            raise np.linalg.LinAlgError("the regressors' Gram matrix is not positive definite even with jitter")
+        return real(g)
+
+    monkeypatch.setattr(lsq, "_cholesky", failing_schur)
+    got = lsq.bounded_lstsq_gram(a.T @ a, a.T @ y, lb, np.full(7, np.inf))
+    assert calls["n"] >= 3
+    np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9)
+
+
 def test_delay_search_scores_every_delay_as_one_fit_each():
     # the held-out RMSE of each delay, from the stacked solves, is that of the delay's own bounded
     # least-squares fit on the fitting part, evaluated on the held-out rows

@@ -35,7 +35,7 @@ def bounded_lstsq(a: FloatArray, y: FloatArray, lb: FloatArray, ub: FloatArray, 
 def bounded_lstsq_gram(gram: FloatArray, atb: FloatArray, lb: FloatArray, ub: FloatArray, *,
                        ridge: FloatArray | None = None) -> FloatArray:
     """The same from the normal equations ``gram = A'A`` and ``atb = A'y`` (module docstring)."""
-    from scipy.optimize import lsq_linear, nnls
+    from scipy.optimize import lsq_linear
 
     g = np.array(gram, dtype=np.float64)
     b = np.array(atb, dtype=np.float64)
@@ -60,6 +60,23 @@ def bounded_lstsq_gram(gram: FloatArray, atb: FloatArray, lb: FloatArray, ub: Fl
         rhs = np.linalg.solve(rg.T, b)
         res = lsq_linear(rg, rhs, bounds=(lbs, ubs), method="bvls", tol=1e-12)
         return np.asarray(res.x / norms)
+    try:
+        return _lower_bounded(g, b, lbs, norms)
+    except np.linalg.LinAlgError:
+        # eliminating the free variables lost the Schur complement's definiteness to rounding
+        # (a nearly collinear design: its diagonal came out at -2x the jitter's reach, found on
+        # a record that starts mid-cycle); the full factor solves the same problem directly
+        rhs = np.linalg.solve(rg.T, b)
+        res = lsq_linear(rg, rhs, bounds=(lbs, ubs), method="bvls", tol=1e-12)
+        return np.asarray(res.x / norms)
+
+
+def _lower_bounded(g: FloatArray, b: FloatArray, lbs: FloatArray, norms: FloatArray) -> FloatArray:
+    """The scaled problem with lower bounds only (or none) by NNLS on the bounded variables,
+    the free ones eliminated (Schur complement)."""
+    from scipy.optimize import nnls
+
+    p = b.size
     free = ~np.isfinite(lbs)
     bnd = ~free
     shift = np.where(bnd, lbs, 0.0)
