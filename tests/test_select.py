@@ -118,6 +118,10 @@ def test_kind_names_and_refusals():
         ph.fit_model(u, y, None, kind="rate-dependent")
     with pytest.raises(ValueError, match="negate y"):
         ph.fit_model(u, -y, DT)
+    # a falling output is also what a loop that falls after each reversal gives on small swings:
+    # the message names both causes, with the record's correlation and input range
+    with pytest.raises(ValueError, match=r"correlation -1\.00; input 0 to .*excite a wider range"):
+        ph.fit_model(u, -y, DT)
     with pytest.raises(ValueError, match="holdout"):
         ph.fit_model(u, y, DT, holdout=0.9)
 

@@ -427,7 +427,12 @@ def fit_model(
     if spikes.size:
         ys = bridge_glitches(ys, spikes)
     if not rises_with_input(us, ys):
-        raise ValueError("the output falls as the input rises (negative correlation): negate y first")
+        r = float(np.corrcoef(us, ys)[0, 1])
+        raise ValueError(
+            f"the output falls as the input rises over this record (correlation {r:.2f}; input "
+            f"{float(np.min(us)):.4g} to {float(np.max(us)):.4g}, output span {float(np.ptp(ys)):.3g}): every model "
+            "kind here has a rising loop. A sensor that reads the other way round: negate y first; a stage "
+            "whose loop falls after each reversal for longer than these swings: excite a wider range")
     dt = as_scalar("dt", dt, positive=True) if dt is not None else None
     say = progress or (lambda s: None)
     allowed = _allowed_kinds(kind, kinds, dt)
