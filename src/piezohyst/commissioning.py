@@ -192,44 +192,34 @@ def _join(parts: list[FloatArray], start: float, limits: CommandLimits, dt: floa
     return np.concatenate(out)
 
 
-#: Share of a run's commands the safe layer may slow before :func:`_warn_if_slowed` says so.
-SLOWED_SHARE = 0.05
-
-
-def _warn_if_slowed(res: TrackingResult, what: str) -> None:
-    """A :class:`~piezohyst.ClippingWarning` when the safe layer slowed more than
-    :data:`SLOWED_SHARE` of a run's commands: the error then says more about the step limit than
-    about the controller (a 5 Hz sinusoid at 500 Hz sampling asked for 2.6 V per sample against 2)."""
-    safety = res.info.get("safety") or {}
-    sent, slowed = int(safety.get("commands_sent", 0)), int(safety.get("slew_limited", 0))
-    if sent and slowed > SLOWED_SHARE * sent:
-        from .rig import ClippingWarning
-
-        warnings.warn(f"{what}: the safe layer slowed {slowed} of {sent} commands to its step limit of "
-                      f"{safety.get('max_step_V', float('nan')):.3g} V per sample: the reference asks for faster "
-                      f"changes than the limits allow, and the error shows it; slow the reference, or commission "
-                      f"with a larger max_step_fraction", ClippingWarning, stacklevel=3)
-
-
 #: A loop holds a measurement that changes in one sample by more than this many times the largest
 #: change of the identification run (a sensor glitch, :attr:`CommissionedController.max_jump`) ...
 GLITCH_JUMP_FACTOR = 10.0
 #: ... and more than this share of its span.
 GLITCH_JUMP_SPAN = 0.2
-#: Share of a run's commands that may end at the amplifier's range before :func:`_warn_if_clipped` says so.
+#: Share of a run's commands the safe layer may slow, or clip to the range, before
+#: :func:`_warn_if_guarded` says so.
+SLOWED_SHARE = 0.05
 CLIPPED_SHARE = 0.05
 
 
-def _warn_if_clipped(res: TrackingResult, what: str) -> None:
-    """A :class:`~piezohyst.ClippingWarning` when more than :data:`CLIPPED_SHARE` of a run's
-    commands were clipped to the amplifier's range: the reference then asks for displacements
-    the stage does not reach within it, and the error says more about the range than about the
-    controller (a reference to 160 % of the stroke: 30 % e_max, and nothing said)."""
-    safety = res.info.get("safety") or {}
-    sent, clipped = int(safety.get("commands_sent", 0)), int(safety.get("clipped", 0))
-    if sent and clipped > CLIPPED_SHARE * sent:
-        from .rig import ClippingWarning
+def _warn_if_guarded(res: TrackingResult, what: str) -> None:
+    """A :class:`~piezohyst.ClippingWarning` when the safe layer slowed more than
+    :data:`SLOWED_SHARE` of a run's commands, or clipped more than :data:`CLIPPED_SHARE` of them
+    to the amplifier's range: the error then says more about the step limit (a 5 Hz sinusoid at
+    500 Hz sampling asked for 2.6 V per sample against 2) or about the range (a reference to
+    160 % of the stroke: 30 % e_max, and nothing said) than about the controller."""
+    from .rig import ClippingWarning
 
+    safety = res.info.get("safety") or {}
+    sent = int(safety.get("commands_sent", 0))
+    slowed, clipped = int(safety.get("slew_limited", 0)), int(safety.get("clipped", 0))
+    if sent and slowed > SLOWED_SHARE * sent:
+        warnings.warn(f"{what}: the safe layer slowed {slowed} of {sent} commands to its step limit of "
+                      f"{safety.get('max_step_V', float('nan')):.3g} V per sample: the reference asks for faster "
+                      f"changes than the limits allow, and the error shows it; slow the reference, or commission "
+                      f"with a larger max_step_fraction", ClippingWarning, stacklevel=3)
+    if sent and clipped > CLIPPED_SHARE * sent:
         y = res.output[np.isfinite(res.output)]
         reached = f"{float(np.min(y)):.4g} to {float(np.max(y)):.4g} um" if y.size else "nothing"
         warnings.warn(f"{what}: {clipped} of {sent} commands were clipped to the amplifier's range "
@@ -520,8 +510,7 @@ class CommissionedController:
         else:
             res = self._track_step(r, feedback=True if feedback is None else bool(feedback), learning=learning,
                                    period=period, label=label, conditioning=cond)
-        _warn_if_slowed(res, "track")
-        _warn_if_clipped(res, "track")
+        _warn_if_guarded(res, "track")
         return res
 
     def _cutoff(self, per: int | None, dt: float) -> float:

@@ -55,6 +55,7 @@ import numpy as np
 from ._numba import njit
 from ._validation import FloatArray, as_scalar, as_signal
 from .data import Dataset
+from .signals import interpolate_over
 
 #: Default largest command change per sample, as a fraction of the amplifier's range.
 MAX_STEP_FRACTION = 0.02
@@ -299,10 +300,7 @@ def bridge_dropouts(y: FloatArray, dt: float, who: str) -> tuple[FloatArray, int
     warnings.warn(f"{who} returned NaN or inf instead of a measurement at {count} of {y.size} samples (first at "
                   f"sample {int(starts[0])}, t = {starts[0] * dt:.6g} s): sensor dropouts? They are bridged by "
                   "linear interpolation", SensorDropoutWarning, stacklevel=3)
-    idx = np.arange(y.size)
-    out = y.copy()
-    out[bad] = np.interp(idx[bad], idx[~bad], y[~bad])
-    return out, count
+    return interpolate_over(y, bad), count
 
 
 def play_checked(plant: Any, u: FloatArray) -> FloatArray:

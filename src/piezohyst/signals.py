@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ._validation import FloatArray, as_scalar, as_signal
@@ -136,3 +138,17 @@ def cycles_after_first(n: int, period: int | None) -> slice:
     whole = (n // period) * period
     return slice(period, whole)
 
+
+def interpolate_over(y: FloatArray, bad: Any) -> FloatArray:
+    """``y`` with the samples where ``bad`` is True replaced by linear interpolation between the
+    others (held at the ends); ``y`` itself is left as it is. At least one sample must be good.
+
+    >>> interpolate_over(np.array([0.0, 9.0, 2.0, 3.0, 9.0]), np.array([False, True, False, False, True]))
+    array([0., 1., 2., 3., 3.])
+    """
+    out = np.array(y, dtype=np.float64, copy=True)
+    mask = np.asarray(bad, dtype=bool)
+    if mask.any():
+        i = np.arange(out.size)
+        out[mask] = np.interp(i[mask], i[~mask], out[~mask])
+    return out

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import FloatArray
+from ..signals import interpolate_over
 
 IntArray = NDArray[np.int64]
 
@@ -70,10 +71,6 @@ def find_glitches(y: FloatArray) -> IntArray:
 
 def bridge_glitches(y: FloatArray, where: IntArray) -> FloatArray:
     """``y`` with the samples ``where`` replaced by linear interpolation between the others."""
-    out = np.array(y, dtype=np.float64, copy=True)
-    if where.size:
-        ok = np.ones(out.size, dtype=bool)
-        ok[where] = False
-        i = np.arange(out.size)
-        out[where] = np.interp(i[where], i[ok], out[ok])
-    return out
+    bad = np.zeros(np.shape(y)[0], dtype=bool)
+    bad[where] = True
+    return interpolate_over(y, bad)
