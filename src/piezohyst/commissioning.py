@@ -704,7 +704,7 @@ class CommissionedController:
             lead = desired.size - 1
             pre = limits.ramp(guard.last, min(max(float(cmd[0]), limits.low), limits.high), dt)
             table = guard.guard_table(np.concatenate([pre, cmd]))
-            y_all = self._play(table)
+            y_all = self._bridge_glitches(self._play(table), guard)
             self.info["held_command"] = guard.last
             y = y_all[pre.size + lead:]
             e = r - y
@@ -738,6 +738,25 @@ class CommissionedController:
         from .plant import play_checked
 
         return play_checked(self.plant, table)
+
+    @staticmethod
+    def _bridge_glitches(y: FloatArray, guard: GuardedPlant) -> FloatArray:
+        """A played record with its isolated sensor glitches bridged (:mod:`piezohyst.identify.glitches`,
+        as the fit does), counted in ``guard``'s ``sensor_glitches`` and warned about once: learning
+        across plays would otherwise copy them into the next table's correction."""
+        from .identify.glitches import bridge_glitches, find_glitches
+        from .plant import SensorDropoutWarning
+
+        spikes = find_glitches(y)
+        if not spikes.size:
+            return y
+        if not guard.dropouts.glitches:
+            warnings.warn(f"the plant's played record has {spikes.size} isolated glitch"
+                          f"{'es' if spikes.size > 1 else ''} (first at sample {int(spikes[0])}): a sensor's? "
+                          "Bridged by interpolation; sensor_glitches in the run's safety counts says how many",
+                          SensorDropoutWarning, stacklevel=4)
+        guard.dropouts.glitches += int(spikes.size)
+        return bridge_glitches(y, spikes)
 
 
 def _loop_kernel_args(plant: Any, ff: Any, pid: Any) -> tuple[Any, ...] | None:
