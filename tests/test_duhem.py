@@ -241,3 +241,14 @@ def test_an_operating_range_far_beyond_the_knots_is_refused_at_once(v_range, tmp
     p.write_text(json.dumps(doc))
     with pytest.raises(ph.ModelFileError, match="v_range"):
         ph.load_model(p)
+
+
+def test_a_record_too_short_for_the_knots_is_a_clear_error():
+    """Found by fuzzing: fit_model(kind="generalized-duhem") on 566 samples stopped at an
+    AssertionError (no knot count has 100 samples per knot to fit on, and no other kind to fall
+    back on); now a ValueError that says so."""
+    t = np.arange(450) * 1e-3
+    u = 50.0 - 50.0 * np.cos(2 * np.pi * 4.0 * t)
+    y = 0.2 * u + 2.0 * np.sin(2 * np.pi * 4.0 * t)
+    with pytest.raises(ValueError, match="too few to choose a generalized Duhem model's knots"):
+        ph.fit_model(u, y, 1e-3, kind="generalized-duhem")

@@ -861,7 +861,10 @@ def _duhem_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bo
         return inc
     sizes = [n] if n else [k for k in DUHEM_KNOTS if sc.n_fit >= 100 * k]
     if not sizes:
-        assert inc is not None
+        if inc is None:  # the Duhem model alone was asked for
+            raise ValueError(f"{sc.n_fit} samples to fit on are too few to choose a generalized Duhem model's knots "
+                             f"(at least {100 * min(DUHEM_KNOTS)}: 100 per knot, {min(DUHEM_KNOTS)} knots or more); "
+                             "give a longer record, fix the knots with n=, or try kind='auto'")
         return inc
     k0 = 8 if 8 in sizes else sizes[0]
 
