@@ -302,3 +302,15 @@ def test_a_record_that_never_reverses_is_said_to_show_no_loop():
     once = np.concatenate([ramp, ramp[::-1]])  # up and down once: the descending branch is there
     fit = ph.fit_model(once, true.simulate(once), DT, kind="pi")
     assert not any("never reverses" in w for w in fit.warnings), fit.warnings
+
+
+@pytest.mark.parametrize("samples", [120, 300, 440])
+def test_a_preisach_model_on_a_short_record(samples):
+    """Found by fuzzing: fit_model(kind="preisach") with fewer than 360 samples to fit on (the
+    8-level grid's 36 weights at 10 samples each) stopped at an AssertionError. It now fits as
+    many levels as the record carries."""
+    t = np.arange(samples) * 1e-3
+    u = 50.0 - 50.0 * np.cos(2 * np.pi * 4.0 * t)
+    y = 0.2 * u + 2.0 * np.sin(2 * np.pi * 4.0 * t)
+    fit = ph.fit_model(u, y, 1e-3, kind="preisach")
+    assert fit.model.kind == "preisach" and np.all(np.isfinite(fit.predict(u, 1e-3)))

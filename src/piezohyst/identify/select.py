@@ -785,6 +785,12 @@ def _kind_stage(sc: _Scorer, best: _Candidate, linear: list[str], n: int | None,
     want_rate = "rate-dependent" in linear and st0.rate_dependent and "preisach" in statics
     if want_plain or want_rate:
         levels = [n] if (n and st0.static == "preisach") else [s for s in (8, 12, 16) if n_fit >= 10 * s * (s + 1) // 2]
+        if not levels and inc is None:  # the Preisach model alone, on a short record: as many levels as it carries
+            most = int((math.sqrt(1.0 + 0.8 * n_fit) - 1.0) / 2.0)  # 10 samples per weight
+            if most < 2:
+                raise ValueError(f"{n_fit} samples to fit on are too few for a Preisach model (at least 30: 10 per "
+                                 "weight of 2 levels); give a longer record")
+            levels = [most]
         for s in levels:
             taus, itau = (st0.taus, st0.input_tau) if want_rate else ((), 0.0)
             c = sc.linear(Structure("preisach", s, 0, taus, itau, st0.delay))
