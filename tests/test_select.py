@@ -122,6 +122,12 @@ def test_kind_names_and_refusals():
     # the message names both causes, with the record's correlation and input range
     with pytest.raises(ValueError, match=r"correlation -1\.00; input 0 to .*excite a wider range"):
         ph.fit_model(u, -y, DT)
+    # an output that does not follow the input at all (swings inside a dead zone: found by fuzzing
+    # with correlations of -0.01 to -0.26) is not said to fall as the input rises
+    noise = np.random.default_rng(4).normal(0.0, 1e-3, u.size) - 1e-4 * (u - u.mean()) / np.std(u)
+    assert -0.3 < np.corrcoef(u, noise)[0, 1] < 0
+    with pytest.raises(ValueError, match=r"hardly follows the input.*dead band or play"):
+        ph.fit_model(u, noise, DT)
     with pytest.raises(ValueError, match="holdout"):
         ph.fit_model(u, y, DT, holdout=0.9)
 

@@ -80,6 +80,9 @@ from .result import FitResult, paired_signals, unpack_data
 MIN_GAIN = 0.02
 #: Fraction of the training record held out when no validation data are given.
 HOLDOUT = 0.3
+#: Below this correlation of output with input (in magnitude) a falling output is said not to
+#: follow the input at all, rather than to fall as it rises (the message of ``fit_model``).
+WEAK_CORRELATION = 0.3
 #: Designs (one per structure) the search keeps at once (:meth:`_Scorer._prepared`).
 PREPARED_KEPT = 4
 #: Static parts' columns the search keeps at once (:class:`_Blocks`).
@@ -428,11 +431,16 @@ def fit_model(
         ys = bridge_glitches(ys, spikes)
     if not rises_with_input(us, ys):
         r = float(np.corrcoef(us, ys)[0, 1])
+        seen = (f"correlation {r:.2f}; input {float(np.min(us)):.4g} to {float(np.max(us)):.4g}, output span "
+                f"{float(np.ptp(ys)):.3g}")
+        if r > -WEAK_CORRELATION:  # found by fuzzing: swings inside a dead zone gave r = -0.01 to -0.26
+            raise ValueError(
+                f"the output hardly follows the input over this record ({seen}): swings within the stage's dead "
+                "band or play, or a sensor that does not see the stage? Excite a wider range of the input")
         raise ValueError(
-            f"the output falls as the input rises over this record (correlation {r:.2f}; input "
-            f"{float(np.min(us)):.4g} to {float(np.max(us)):.4g}, output span {float(np.ptp(ys)):.3g}): every model "
-            "kind here has a rising loop. A sensor that reads the other way round: negate y first; a stage "
-            "whose loop falls after each reversal for longer than these swings: excite a wider range")
+            f"the output falls as the input rises over this record ({seen}): every model kind here has a "
+            "rising loop. A sensor that reads the other way round: negate y first; a stage whose loop falls "
+            "after each reversal for longer than these swings: excite a wider range")
     dt = as_scalar("dt", dt, positive=True) if dt is not None else None
     say = progress or (lambda s: None)
     allowed = _allowed_kinds(kind, kinds, dt)
