@@ -303,13 +303,22 @@ def bridge_dropouts(y: FloatArray, dt: float, who: str) -> tuple[FloatArray, int
     return interpolate_over(y, bad), count
 
 
+def _recorded(plant: Any, u: FloatArray, mode: str) -> FloatArray:
+    """The plant's answer to the table ``u`` as it came (dropouts not bridged): one ``play`` of it
+    (``mode`` ``"buffered"``, checked for one value per command) or one ``step`` per command."""
+    if mode == "buffered":
+        y = np.asarray(plant.play(np.ascontiguousarray(u, dtype=np.float64)), dtype=np.float64).ravel()
+        if y.size != u.size:
+            raise ValueError(f"the plant's play() returned {y.size} values for a table of {u.size} commands")
+        return y
+    return np.array([measured(plant.step(v)) for v in u])
+
+
 def play_checked(plant: Any, u: FloatArray) -> FloatArray:
     """``plant.play(u)`` with its answer checked: one value per command, sensor dropouts
     bridged (:func:`bridge_dropouts`)."""
-    y = np.asarray(plant.play(np.ascontiguousarray(u, dtype=np.float64)), dtype=np.float64).ravel()
-    if y.size != u.size:
-        raise ValueError(f"the plant's play() returned {y.size} values for a table of {u.size} commands")
-    return bridge_dropouts(y, float(plant.dt), f"the plant's play() ({type(plant).__name__})")[0]
+    return bridge_dropouts(_recorded(plant, u, "buffered"), float(plant.dt),
+                           f"the plant's play() ({type(plant).__name__})")[0]
 
 
 def open_loop(plant: Any, u: Any) -> Dataset:
@@ -322,8 +331,7 @@ def open_loop(plant: Any, u: Any) -> Dataset:
     x = as_signal("u", u)
     if plant_mode(plant) == "step":
         plant.reset()
-        y = bridge_dropouts(np.array([measured(plant.step(v)) for v in x]), dt,
-                            f"the plant's step() ({type(plant).__name__})")[0]
+        y = bridge_dropouts(_recorded(plant, x, "step"), dt, f"the plant's step() ({type(plant).__name__})")[0]
         how = "step"
     else:
         y = play_checked(plant, x)
@@ -539,13 +547,8 @@ class GuardedPlant:
         """Guard the table ``u`` and play it (either protocol: a Plant steps through it); missing
         measurements bridged (:func:`bridge_dropouts`)."""
         sent = self.guard_table(u)
-        if self.mode == "buffered":
-            y = np.asarray(self.plant.play(np.ascontiguousarray(sent)), dtype=np.float64).ravel()
-            if y.size != sent.size:
-                raise ValueError(f"the plant's play() returned {y.size} values for a table of {sent.size} commands")
-        else:
-            y = np.array([measured(self.plant.step(v)) for v in sent])
-        y, missing = bridge_dropouts(y, self.dt, f"the plant ({type(self.plant).__name__})")
+        y, missing = bridge_dropouts(_recorded(self.plant, sent, self.mode), self.dt,
+                                     f"the plant ({type(self.plant).__name__})")
         self.bridged += missing
         if y.size:
             self.dropouts.hold(float(y[-1]))
