@@ -822,7 +822,7 @@ def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
             fetch()
     finally:
         if pending:  # interrupted: do not leave the scheduler running the rest
-            client.cancel([fut for fut, _ in pending.values() if fut not in finished])
+            client.cancel([fut for fut, _ in pending.values()])
 
 
 def identify_many(
