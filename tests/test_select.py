@@ -320,3 +320,27 @@ def test_a_preisach_model_on_a_short_record(samples):
     y = 0.2 * u + 2.0 * np.sin(2 * np.pi * 4.0 * t)
     fit = ph.fit_model(u, y, 1e-3, kind="preisach")
     assert fit.model.kind == "preisach" and np.all(np.isfinite(fit.predict(u, 1e-3)))
+
+
+@pytest.mark.parametrize("start", [-90.0, -40.0, 30.0])
+def test_a_preisach_fit_predicts_a_record_that_starts_elsewhere(start):
+    """Found probing prediction across records: fitted on cycles that start at the bottom of the
+    range, a Preisach model predicted a record starting 10 V above it (zoo's relay-Preisach stage)
+    at 2.9e6 µm. The strip of down-only hysterons beyond the grid is never moved by such a record
+    (the first sample sets it down and nothing lifts it), its column is constant, the offset's twin,
+    and its weight came out at 4.6e6; a record that starts higher leaves it partly up. A strip the
+    record does not move now keeps weight zero; the prediction is as good as on the record's own
+    range (0.6-0.8 % of span RMS on this stage at 1, 3 and 5 Hz)."""
+    from tests.plants.zoo import zoo
+
+    stage = next(s for s in zoo(seed=0) if s.name.startswith("relay Preisach"))
+    lo, hi = stage.u_range
+    dt = stage.dt
+    t = np.arange(int(round(3.0 / dt))) * dt  # (fitted on 2 s, the weight happened to come out small)
+    u = lo + (hi - lo) * 0.5 * (1 - np.cos(2 * np.pi * 1.0 * t) * np.linspace(1.0, 0.3, t.size))
+    fit = ph.fit_model(u, stage.excite(u).y, dt, kind="preisach", delay=0)
+    mid = 0.5 * (lo + hi)
+    ut = mid + (start - mid) * np.cos(2 * np.pi * 2.0 * t[: t.size // 2])
+    yt = stage.excite(ut).y
+    rms = float(np.sqrt(np.mean((yt - fit.predict(ut, dt)) ** 2)))
+    assert rms < 0.05 * float(np.ptp(yt)), (rms, float(np.ptp(yt)), fit.model.weights.max())

@@ -55,6 +55,10 @@ MAP_MARGIN = 0.1
 #: Tikhonov weight on Preisach weights, relative to the mean diagonal of the normal equations:
 #: the interior of the Preisach plane is barely seen by major loops; this keeps it small.
 PREISACH_RIDGE = 1e-4
+#: The same for the strips beyond the grid (:class:`~piezohyst.models.preisach.Preisach`): small
+#: enough to leave every strip the record moves as it fits, large enough to keep a strip it never
+#: moves (whose weight the data do not decide) at zero.
+PREISACH_STRIP_RIDGE = 1e-8
 
 
 @dataclass(frozen=True)
@@ -581,7 +585,11 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
     if st.static == "preisach":
         ridge = np.zeros(gram.shape[0])
         ridge[:p] = PREISACH_RIDGE * float(np.mean(np.diag(gram)[:p]))
-        ridge[p - 2 * st.size:p] = 0.0  # the strips beyond the range: what the data see, unpenalised
+        # the strips beyond the range: what the data see, all but unpenalised; the little weight
+        # keeps a strip the record never moves at zero (a column constant over the fit is the
+        # offset's twin, and its weight otherwise anything: a new record that moves it by a
+        # fraction then predicted millions of µm)
+        ridge[p - 2 * st.size:p] = PREISACH_STRIP_RIDGE * float(np.mean(np.diag(gram)[:p]))
     x = bounded_lstsq_gram(gram, atb, lb, ub, ridge=ridge)
     nx = t.shape[1]
     xb, tau_map = x[:nx], (x[nx:] if st.map_knots else None)
