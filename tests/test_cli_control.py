@@ -89,3 +89,29 @@ def _pi_model_file(tmp_path):
     rig = ph.VirtualRig(seed=0)
     ds = rig.excite(ph.sinusoid(1.0, 2, 0.0, 100.0, rig.dt))
     return ph.save_model(ph.fit_pi(ds).model, tmp_path / "pi.json")
+
+
+def test_compensate_says_when_the_commands_leave_the_identified_range(tmp_path, capsys):
+    """A model identified on 0-50 V, asked for a trajectory that needs up to ~96 V: the table is
+    written (the amplifier allows it) with a warning that the model extrapolates there, on stderr
+    and in --json's warnings; within the range, and for a file without the fit's range (one saved
+    without a fit, or before it was recorded), nothing is said."""
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(10, 100.0), np.linspace(0.02, 0.002, 10))
+    u = 25.0 - 25.0 * np.cos(2 * np.pi * np.arange(20000) * 1e-4)
+    fit = ph.fit_model(u, true.simulate(u), 1e-4, kind="pi")
+    path = ph.save_model(fit.model, tmp_path / "m.json", fit=fit)
+    assert json.loads(path.read_text())["fit"]["input_range_V"] == [0.0, 50.0]
+    bare = ph.save_model(fit.model, tmp_path / "bare.json")
+    k = np.arange(1000) / 1000
+    for name, lo, hi in (("far", 10.0, 90.0), ("within", 10.0, 45.0)):
+        u2 = 0.5 * (lo + hi) - 0.5 * (hi - lo) * np.cos(2 * np.pi * k)
+        ref = true.simulate(np.concatenate([u2, u2]))[1000:]
+        (tmp_path / f"{name}.csv").write_text("t,x_d\n" + "\n".join(f"{i * 1e-4},{v}" for i, v in enumerate(ref)))
+    for model, name, said in ((path, "far", True), (path, "within", False), (bare, "far", False)):
+        assert main(["compensate", "--model", str(model), "--reference", str(tmp_path / f"{name}.csv"),
+                     "-o", str(tmp_path / f"{model.stem}_{name}.csv"), "--json"]) == 0
+        cap = capsys.readouterr()
+        warned = json.loads(cap.out)["warnings"]
+        assert bool(warned) is said and ("beyond the 0 .. 50 V the model was identified on" in cap.err) is said, cap
+        if said:
+            assert "the command goes up to 9" in warned[0], warned

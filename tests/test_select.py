@@ -1,6 +1,8 @@
 """Model selection on held-out data (issue 11, items 4 and 6): ranges from the data, the choice,
 the refit, the table of candidates, and the warnings."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -344,3 +346,23 @@ def test_a_preisach_fit_predicts_a_record_that_starts_elsewhere(start):
     yt = stage.excite(ut).y
     rms = float(np.sqrt(np.mean((yt - fit.predict(ut, dt)) ** 2)))
     assert rms < 0.05 * float(np.ptp(yt)), (rms, float(np.ptp(yt)), fit.model.weights.max())
+
+
+def test_predicting_beyond_the_identified_input_range_warns():
+    """FitResult.predict says when the input leaves the range the model was fitted on by more than
+    2 % of it (every fit records that range: fit_model's kinds, fit_pi, fit_bouc_wen); inside it
+    nothing is said."""
+    true = ph.PrandtlIshlinskii(ph.equal_thresholds(10, 100.0), np.linspace(0.02, 0.002, 10))
+    t = np.arange(20000) * 1e-4
+    u = 25.0 - 25.0 * np.cos(2 * np.pi * t)
+    y = true.simulate(u)
+    fits = [ph.fit_model(u, y, 1e-4, kind=k) for k in ("pi", "preisach")] + [ph.fit_pi(u, y)]
+    fits.append(ph.fit_bouc_wen(u[::10], y[::10], 1e-3, max_iter=3, n_particles=6, polish=False))
+    for fit in fits:
+        assert fit.input_range == (0.0, 50.0)
+        assert fit.summary()["input_range_V"] == [0.0, 50.0]
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            fit.predict(25.0 - 25.5 * np.cos(2 * np.pi * t), 1e-4)  # 1 % beyond: within the tolerance
+        with pytest.warns(ph.ExtrapolationWarning, match="up to 100 V, beyond the 0 .. 50 V"):
+            fit.predict(50.0 - 50.0 * np.cos(2 * np.pi * t), 1e-4)

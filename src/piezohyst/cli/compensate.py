@@ -105,6 +105,23 @@ def load_reference(path: str, ref_col: Any, t_col: Any, fs: float | None) -> tup
     return t, ref
 
 
+def _warn_if_extrapolating(model_path: str, u: Any) -> str | None:
+    """Warn when the commands leave the input range the model file says it was identified on
+    (its ``fit.input_range_V``; files without it say nothing); the warning, or None."""
+    import warnings
+
+    import numpy as np
+
+    from ..identify.result import ExtrapolationWarning, beyond_identified
+    from ..modelio import load_model_document
+
+    fit = load_model_document(model_path).get("fit") or {}
+    said = beyond_identified(float(np.min(u)), float(np.max(u)), fit.get("input_range_V"), "the command")
+    if said:
+        warnings.warn(said, ExtrapolationWarning, stacklevel=2)
+    return said
+
+
 def cmd_compensate(args: argparse.Namespace) -> int:
     import hashlib
 
@@ -154,6 +171,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
                 f"the command leaves the amplifier range {lo:g}..{hi:g} V at {n_out} of {u.size} samples "
                 f"(first at t = {t[i]:.6g} s: {u[i]:.4g} V); change the reference or pass --clip")
     n_limited = n_out
+    extrapolating = _warn_if_extrapolating(args.model, u)
     # three comment lines, as before tables had other formats (readers skip 4 lines: these and the header)
     comments = [producer(), f"model: {args.model} ({model.kind}); sha256 {sha}; reference: {args.reference}",
                 f"units: t in s, x_d in um, u in V; amplifier range {lo:g}..{hi:g} V; clipped samples: {n_limited}; "
@@ -172,6 +190,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
                            "largest_step_V": float(np.max(np.abs(np.diff(u)))) if u.size > 1 else 0.0}
     if periodic_info is not None:
         res["periodic"] = periodic_info
+    res["warnings"] = [extrapolating] if extrapolating else []
     if args.json:
         print_json(res)
     else:

@@ -18,12 +18,13 @@ from .linear import DEFAULT_MARGIN, Structure, fit_structure
 from .lsq import bounded_lstsq
 from .pi import fit_pi, pi_regressors
 from .rate import fit_asymmetric_pi, fit_preisach, fit_rate_dependent, fit_rate_pi
-from .result import FitResult, paired_signals, simulate_fit
+from .result import ExtrapolationWarning, FitResult, paired_signals, simulate_fit
 from .select import fit_model, search_ranges
 
 __all__ = [
     "BW_NAMES",
     "DEFAULT_MARGIN",
+    "ExtrapolationWarning",
     "FitResult",
     "Structure",
     "bounded_lstsq",

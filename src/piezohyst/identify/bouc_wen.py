@@ -159,7 +159,7 @@ def fit_bouc_wen(
     return FitResult(model=model, rmse=rmse, method=method, n_samples=int(us.size),
                      time_s=time.perf_counter() - t0, nit=int(res.nit), nfev=nfev,
                      history=res.history, message=res.message, delay=int(delay),
-                     sensitivity=sens, info=info)
+                     sensitivity=sens, info=info, input_range=(float(us.min()), float(us.max())))
 
 
 def _polish_bouc_wen(x0: FloatArray, lo: FloatArray, hi: FloatArray, u: FloatArray, y_m: FloatArray,

@@ -711,7 +711,8 @@ def fit_structure(u: FloatArray, y: FloatArray, dt: float | None, st: Structure,
     rmse = float(np.sqrt(np.mean(resid**2)))
     info.update({"structure": st.to_dict(), "label": st.label()})
     fit = FitResult(model=model, rmse=rmse, method=f"bounded least squares ({st.label()})",
-                    n_samples=int(n_fit - d), time_s=time.perf_counter() - t0, delay=int(d), info=info)
+                    n_samples=int(n_fit - d), time_s=time.perf_counter() - t0, delay=int(d), info=info,
+                    input_range=(float(u[:n_fit].min()), float(u[:n_fit].max())))
     inst = _instantaneous_min_slope(model)
     if info["floor_at_margin"] and inst is not None and inst <= 2.0 * margin:
         fit.warnings.append(

@@ -311,5 +311,6 @@ def fit_pi(
     rmse = float(np.sqrt(np.mean(resid**2)))
     return FitResult(model=model, rmse=rmse, method=method, n_samples=int(us.size),
                      time_s=time.perf_counter() - t0, nit=nit, nfev=nfev, history=history,
-                     message=message, delay=int(delay), info=info)
+                     message=message, delay=int(delay), info=info,
+                     input_range=(float(us.min()), float(us.max())))
 

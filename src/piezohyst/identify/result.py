@@ -10,6 +10,36 @@ import numpy as np
 from .._validation import FloatArray, as_signal
 
 
+#: A record's input may go this share of the identified input span beyond it before
+#: :meth:`FitResult.predict` (and ``piezohyst compensate``) say that the model extrapolates.
+EXTRAPOLATION_TOLERANCE = 0.02
+
+
+class ExtrapolationWarning(UserWarning):
+    """An input (or a command) beyond the range the model was identified on: no record showed the
+    stage there, and a hysteresis model's output beyond it is its structure's guess (a P-I model
+    goes on at its last slope, a Preisach or Duhem model at its reversible one), not a measurement."""
+
+
+def beyond_identified(u_min: float, u_max: float, identified: Any, what: str = "the input") -> str | None:
+    """A sentence naming how far ``u_min .. u_max`` (``what``: the input, the command) leaves
+    ``identified`` (``(lo, hi)`` V), or None when it stays within
+    :data:`EXTRAPOLATION_TOLERANCE` of that span."""
+    if identified is None:
+        return None
+    lo, hi = float(identified[0]), float(identified[1])
+    tol = EXTRAPOLATION_TOLERANCE * max(hi - lo, 0.0)
+    parts = []
+    if u_min < lo - tol:
+        parts.append(f"down to {u_min:.4g} V")
+    if u_max > hi + tol:
+        parts.append(f"up to {u_max:.4g} V")
+    if not parts:
+        return None
+    return (f"{what} goes {' and '.join(parts)}, beyond the {lo:.4g} .. {hi:.4g} V the model was identified "
+            f"on: there it extrapolates (identify it on a record that covers the range in use)")
+
+
 @dataclass
 class FitResult:
     """What an identification produced.
@@ -40,6 +70,9 @@ class FitResult:
     warnings : list of str
         What the fit found worth a user's attention (a large or structured hold-out error, a
         loop that no monotone model can represent, a constraint that binds).
+    input_range : (float, float) or None
+        The smallest and largest input (V) of the record the model was fitted on:
+        :meth:`predict` warns (:class:`ExtrapolationWarning`) beyond it.
     """
 
     model: Any
@@ -55,6 +88,7 @@ class FitResult:
     sensitivity: dict[str, float] | None = None
     info: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    input_range: tuple[float, float] | None = None
 
     @property
     def poorly_constrained(self) -> list[str]:
@@ -81,11 +115,23 @@ class FitResult:
         if "holdout" in self.info:
             out["holdout"] = self.info["holdout"]
         out["warnings"] = list(self.warnings)
+        if self.input_range is not None:
+            out["input_range_V"] = [float(self.input_range[0]), float(self.input_range[1])]
         return out
 
     def predict(self, u: Any, dt: float | None = None) -> FloatArray:
-        """The fitted model's output for ``u`` in µm (the unit of ``y``)."""
-        return self.model.predict(u, dt)
+        """The fitted model's output for ``u`` in µm (the unit of ``y``); an input beyond
+        :attr:`input_range` (by more than 2 % of it) is warned about (:class:`ExtrapolationWarning`)."""
+        out = self.model.predict(u, dt)
+        if self.input_range is not None:
+            uu = np.asarray(u, dtype=np.float64)
+            if uu.size and np.all(np.isfinite(uu)):
+                said = beyond_identified(float(uu.min()), float(uu.max()), self.input_range)
+                if said:
+                    import warnings
+
+                    warnings.warn(said, ExtrapolationWarning, stacklevel=2)
+        return out  # type: ignore[no-any-return]
 
     def plot(self, u: Any, y: Any = None, dt: float | None = None, *, split: int | None = None,
              title: str | None = None, data_label: str = "measured") -> Any:
