@@ -32,7 +32,8 @@ _LAZY: dict[str, str] = {
     "TrackingResult": "control", "UnstableLoopError": "control", "track": "control",
     "DataError": "data", "Dataset": "data", "load_dataset": "data", "load_piezo_dbo": "data",
     "save_dataset": "data",
-    "ExtrapolationWarning": "identify", "FitResult": "identify", "fit_bouc_wen": "identify", "fit_pi": "identify", "fit_rate_pi": "identify",
+    "ExtrapolationWarning": "identify", "FitResult": "identify", "fit_bouc_wen": "identify", "fit_pi": "identify",
+    "fit_rate_pi": "identify",
     "fit_model": "identify", "fit_asymmetric_pi": "identify", "fit_preisach": "identify",
     "fit_rate_dependent": "identify",
     "AsymmetricPI": "models", "BoucWen": "models", "BoucWenHysteresis": "models", "BoucWenStepper": "models", "Compensator": "models",
@@ -93,8 +94,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .control import (BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult,  # noqa: F401
                           UnstableLoopError, track)
     from .data import DataError, Dataset, load_dataset, load_piezo_dbo, save_dataset  # noqa: F401
-    from .identify import (ExtrapolationWarning, FitResult, fit_asymmetric_pi, fit_bouc_wen, fit_model, fit_pi,  # noqa: F401
-                           fit_preisach, fit_rate_dependent, fit_rate_pi)
+    from .identify import (ExtrapolationWarning, FitResult, fit_asymmetric_pi, fit_bouc_wen,  # noqa: F401
+                           fit_model, fit_pi, fit_preisach, fit_rate_dependent, fit_rate_pi)
     from .modelio import ModelFileError, load_model, save_model  # noqa: F401
     from .models import (AsymmetricPI, BoucWen, BoucWenHysteresis, BoucWenStepper, Compensator,  # noqa: F401
                          GeneralizedDuhem, HysteresisModel,
