@@ -112,7 +112,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ._validation import FloatArray, as_signal
-from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead_in, lead_in_after
+from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead_in_after, lead_in_from_rest
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
@@ -465,11 +465,6 @@ class CommissionedController:
         """1 / the model's mean slope: converts a feedback correction in µm into volts."""
         return float(np.ptp(self.identification.u) / np.ptp(self.identification.y))
 
-    def _rest_output(self, limits: CommandLimits) -> float:
-        """The model's output (µm) at the rest command, from its initial state."""
-        dt = self.plant.dt if self.model.dynamic else None
-        return float(self.model.predict(np.full(2, limits.rest), dt)[-1])
-
     def conditioning_command(self) -> FloatArray:
         """This controller's :func:`conditioning_sweep` (legs of :attr:`CONDITIONING_LEG_S`). A run
         then rises from the bottom to its first target as slowly (a quick rise would ring a lightly
@@ -481,7 +476,7 @@ class CommissionedController:
         model's output along it, from its initial state) when ``conditioning``, else straight."""
         dt = self.plant.dt
         if not conditioning:
-            return lead_in(ff, self._rest_output(limits), y_to, limits, dt)
+            return lead_in_from_rest(ff, self.model, y_to, limits, dt)
         return lead_in_after(ff, self.model, self.conditioning_command(), y_to, limits, dt,
                              rise_s=self.CONDITIONING_LEG_S)
 

@@ -286,7 +286,7 @@ def _describe(feedforward: Any, feedback: Any, feedback_at: str) -> str:
 
 def lead_in(feedforward: Any, y_from: float, y_to: float, limits: Any, dt: float, *,
             share: float = 0.5, before: FloatArray | None = None,
-            min_seconds: float = 0.01) -> tuple[FloatArray, FloatArray]:
+            min_seconds: float = 0.01, max_samples: int = 2**22) -> tuple[FloatArray, FloatArray]:
     """A desired trajectory from ``y_from`` to ``y_to`` µm (raised cosine, both ends included) whose
     commands, from the feedforward's initial state, change by at most ``share * limits.max_step``
     per sample (within the range). Returns (desired µm, commands V); the caller ramps the command
@@ -298,7 +298,8 @@ def lead_in(feedforward: Any, y_from: float, y_to: float, limits: Any, dt: float
 
     The ramp's length starts at the safe layer's shortest ramp and doubles until the commands,
     computed offline with ``feedforward.command``, are that smooth (the inverse of an input lag is
-    a lead: a fast ramp in displacement asks for a much faster one in volts).
+    a lead: a fast ramp in displacement asks for a much faster one in volts), or until it passes
+    ``max_samples`` (the commands are then returned as they are).
     """
     n = max(int(math.ceil(min_seconds / dt)), 2)
     bound = share * limits.max_step
@@ -309,9 +310,34 @@ def lead_in(feedforward: Any, y_from: float, y_to: float, limits: Any, dt: float
         desired = np.concatenate([head, [y_from], desired])
         cmd = feedforward.command(desired)
         steps = np.abs(np.diff(np.clip(cmd[head.size:], limits.low, limits.high)))
-        if steps.max() <= bound or n > 2**22:
+        if steps.max() <= bound or n > max_samples:
             return desired, cmd
         n *= 2
+
+
+#: The longest lead-in from rest (:func:`lead_in_from_rest`) tried straight from the model's
+#: settled rest output, seconds.
+LEAD_IN_MAX_S = 10.0
+
+
+def lead_in_from_rest(feedforward: Any, model: Any, y_to: float, limits: Any, dt: float,
+                      *, share: float = 0.5) -> tuple[FloatArray, FloatArray]:
+    """:func:`lead_in` from the model's output at the rest command to ``y_to``.
+
+    The model's initial state is the de-energised one at 0 V. Where the stage rests elsewhere (a
+    range that excludes 0 V) a model with lags starts off their equilibrium, and the inverse, asked
+    for the rest output from that state at once, jumps (-15.8 then -6.6 V on a stage resting at
+    -10 V): no ramp is then smooth enough, and the ramp doubled to 6.5 million samples. When the
+    straight ramp is not smooth within :data:`LEAD_IN_MAX_S`, the lead-in follows the model's own
+    output along the rest command first (:func:`lead_in_after`), which the inverse maps back to the
+    rest command exactly, then rises."""
+    y_rest = float(np.asarray(model.predict(np.full(2, limits.rest), dt if model.dynamic else None))[-1])
+    desired, cmd = lead_in(feedforward, y_rest, y_to, limits, dt, share=share,
+                           max_samples=max(int(LEAD_IN_MAX_S / dt), 2))
+    steps = np.abs(np.diff(np.clip(cmd, limits.low, limits.high)))
+    if steps.size == 0 or steps.max() <= share * limits.max_step:
+        return desired, cmd
+    return lead_in_after(feedforward, model, np.full(2, limits.rest), y_to, limits, dt, rise_s=0.01)
 
 
 def lead_in_after(feedforward: Any, model: Any, sweep: Any, y_to: float, limits: Any, dt: float, *,

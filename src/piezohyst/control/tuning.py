@@ -258,15 +258,26 @@ def major_loop_steepest_slope(model: Any, dt: float, *, u_range: tuple[float, fl
     return float(np.max(dy[moving] / du[moving])) if moving.any() else 0.0
 
 
-def reversal_chord_slope(model: Any, dt: float, *, u_level: float, u_range: tuple[float, float], step: float) -> float:
+def approach_direction(u_level: float, u_range: tuple[float, float]) -> float:
+    """+1 when a hold at ``u_level`` is reached from rest (0 V, or the nearest end of the range)
+    rising, -1 falling (a stage that rests at the top of its range, or a bipolar one held below 0 V)."""
+    lo, hi = u_range
+    return 1.0 if u_level >= min(max(0.0, lo), hi) else -1.0
+
+
+def reversal_chord_slope(model: Any, dt: float, *, u_level: float, u_range: tuple[float, float], step: float,
+                         approach: float | None = None) -> float:
     """The model's settled answer (µm per V) to a reversal of ``step`` volts at ``u_level``
-    (ramped to from rest, held, then stepped down): the slope a probe of that size sees there."""
+    (ramped to from rest, held, then stepped back against ``approach``, the way the stage came:
+    +1 rising, -1 falling; default :func:`approach_direction`): the slope a probe of that size
+    sees there."""
     lead = _lead_to(u_level, u_range, dt)
+    back = -(approach if approach is not None else approach_direction(u_level, u_range)) * step
     runs = []
-    for du in (0.0, -step):
+    for du in (0.0, back):
         u = np.concatenate([lead, np.full(lead.size * 2, u_level + du)])
         runs.append(float(np.asarray(model.predict(u, dt if model.dynamic else None), dtype=np.float64)[-1]))
-    return (runs[0] - runs[1]) / step
+    return (runs[1] - runs[0]) / back
 
 
 def integral_loop_response(impulse: dict[str, FloatArray], dt: float, *, delay: int, scale: float,
@@ -478,7 +489,7 @@ def tune_integral_safely(
     """
     from .compiled_loop import run_hold
     from .pid import PID
-    from .tracking import lead_in, lead_in_after
+    from .tracking import lead_in_after, lead_in_from_rest
 
     opt = options or SafeTuningOptions()
     dt = plant.dt
@@ -506,7 +517,12 @@ def tune_integral_safely(
     # strong as the tracking loop at the model's bound (``ki_top`` at the model's linearisation):
     # no further into the model's margins than before, and any resonance the model lacks shows.
     probe = min(opt.probe_fraction * lim.span, 0.5 * lim.max_step)
-    chord = reversal_chord_slope(model, dt, u_level=u_level, u_range=(lim.low, lim.high), step=probe)
+    # the first probe goes on the way the hold was reached (the branch the stage was on), the
+    # next ones reverse it, whichever end of the range the stage rests at (after a conditioning
+    # sweep the stage rises from the bottom)
+    toward = 1.0 if conditioning is not None or u_level >= lim.rest else -1.0
+    chord = reversal_chord_slope(model, dt, u_level=u_level, u_range=(lim.low, lim.high), step=probe,
+                                 approach=toward)
     steepest = major_loop_steepest_slope(model, dt, u_range=(lim.low, lim.high))
     reversal_ratio = max(1.0, steepest / chord) if chord > 0 and math.isfinite(steepest) else slope_ratio
     reversal_ratio = max(reversal_ratio, slope_ratio)
@@ -516,8 +532,7 @@ def tune_integral_safely(
     if conditioning is not None:
         desired, cmd = lead_in_after(ff, model, conditioning, level, lim, dt, rise_s=rise_s)
     else:
-        y_rest = float(model.predict(np.full(2, lim.rest), dt if model.dynamic else None)[-1])
-        desired, cmd = lead_in(ff, y_rest, level, lim, dt)
+        desired, cmd = lead_in_from_rest(ff, model, level, lim, dt)
     plant.ramp_to(float(cmd[0]))
     settle = max(int(round(0.05 / dt)), 20)
     desired = np.concatenate([desired, np.full(settle, level)])
@@ -541,7 +556,7 @@ def tune_integral_safely(
         further, and the feedback the command that cancels it: against the branch the stage came
         up or down, the command moves as far as the slope after a reversal asks (on a play-type
         stage several times the mean inverse slope)."""
-        kw = dict(n=n, level=level, add=probe if probe_on else 0.0, check=check, e0=e0, fb0=fb0,
+        kw = dict(n=n, level=level, add=toward * probe if probe_on else 0.0, check=check, e0=e0, fb0=fb0,
                   tol_e=tol_e + abs(offset), tol_fb=tol_fb + abs(offset) * volts_per_um_reversed,
                   vpu=volts_per_um, state=state)
         fast = run_hold(plant, ff, pid, **kw)  # the same loop, compiled, where the parts have kernels
@@ -575,7 +590,7 @@ def tune_integral_safely(
                 aborted = True
                 break
             # the feedback cancels the probe: its answer runs from 0 towards 1 (of the probe)
-            answers.append(-sign * (fbs - fb0) / probe)
+            answers.append(-sign * (fbs - fb0) / (toward * probe))
             ringing.append(_error_ripple(fbs, fb0, ki * dt * volts_per_um))
         if aborted:  # back to where the trial began, probe off, feedforward alone, and settle
             pid.integral = integral0
