@@ -288,11 +288,11 @@ def test_the_reversal_slope_is_taken_against_the_way_the_hold_was_reached():
 def test_a_stage_that_rests_at_the_top_of_its_range_commissions_like_its_mirror():
     """A Maxwell-slip stage on -100..-10 V (it rests at -10 V, the top): commission() took 461 s
     (the lead-in's inverse jumped at its first sample, the model's lags starting at 0 V, and the
-    ramp doubled to 6.5 million samples), and the tuning's probes, reached from above, all fell on
-    the flat slope after a reversal (and the reversal slope was taken continuing down): ki 9,360
-    1/s, and feedback rang at 1.2 kHz, 1.16 % e_max at 5 Hz against 0.14 % without it. Now the
-    lead-in follows the model's own output at rest, the first probe goes the way the hold was
-    reached and the reversal is taken against it; feedback does no harm."""
+    ramp doubled to 6.5 million samples), and the tuning took the slope after a reversal stepping
+    down, which after the fall from rest continues the branch (reversal ratio 1.11 where the
+    mirrored stage has 3.81): ki 9,360 1/s, and feedback rang at 1.2 kHz, 1.16 % e_max at 5 Hz
+    against 0.14 % without it. Now the lead-in follows the model's own output at rest and the
+    reversal is taken against the approach: 7 s, ki 1,670 1/s; feedback does no harm."""
     from tests.plants.zoo import AsymmetricMaxwellSlip, Stage
     from tests.test_zoo import steady_range
 
