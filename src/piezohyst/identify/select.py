@@ -69,7 +69,7 @@ import numpy as np
 from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
-from ..models.duhem import MAX_RANGE_SPANS
+from ..models.duhem import MAX_RANGE_SPANS, reaches_beyond_knots
 from ..models.play import play_operator
 from .glitches import SPAN_SHARE as GLITCH_SPAN_SHARE
 from .glitches import bridge_glitches, find_glitches
@@ -876,8 +876,7 @@ def _far_from_rest(u: FloatArray) -> str | None:
     than :data:`~piezohyst.models.duhem.MAX_RANGE_SPANS` times smaller than its distance from
     rest), or None."""
     lo, hi = float(np.min(u)), float(np.max(u))
-    span = hi - lo
-    if lo > MAX_RANGE_SPANS * span or hi < -MAX_RANGE_SPANS * span:
+    if reaches_beyond_knots(min(lo, 0.0), max(hi, 0.0), lo, hi):  # the v_range a fit gives it
         return f"the input covers only {lo:.4g} .. {hi:.4g} V, more than {MAX_RANGE_SPANS} times its span from 0 V (rest)"
     return None
 

@@ -273,6 +273,13 @@ def reachable_band(knots: FloatArray, f: FloatArray, g: FloatArray, lam: float,
     return nodes, ylo - pad, yhi + pad, status
 
 
+def reaches_beyond_knots(lo: float, hi: float, knot_lo: float, knot_hi: float) -> bool:
+    """Whether an operating range ``lo .. hi`` V reaches more than :data:`MAX_RANGE_SPANS` times the
+    knots' span beyond them (a model's ``v_range``, which holds 0 V: its state runs from rest)."""
+    span = knot_hi - knot_lo
+    return lo < knot_lo - MAX_RANGE_SPANS * span or hi > knot_hi + MAX_RANGE_SPANS * span
+
+
 @register_kind("generalized-duhem", "coleman-hodgdon", "semilinear-duhem")
 @dataclass(frozen=True, eq=False)
 class GeneralizedDuhem:
@@ -335,8 +342,7 @@ class GeneralizedDuhem:
             lo, hi = (as_scalar("v_range", x) for x in self.v_range)
             if not lo <= 0.0 <= hi or not hi > lo:
                 raise ValueError(f"v_range must hold 0 V (the rest state) with high > low, got {self.v_range}")
-            span = float(knots[-1] - knots[0])
-            if lo < float(knots[0]) - MAX_RANGE_SPANS * span or hi > float(knots[-1]) + MAX_RANGE_SPANS * span:
+            if reaches_beyond_knots(lo, hi, float(knots[0]), float(knots[-1])):
                 raise ValueError(
                     f"v_range {lo:g}..{hi:g} V reaches more than {MAX_RANGE_SPANS} times the knots' span beyond "
                     f"them ({float(knots[0]):g}..{float(knots[-1]):g} V): beyond the knots F and G are constant and "
