@@ -105,17 +105,17 @@ def load_reference(path: str, ref_col: Any, t_col: Any, fs: float | None) -> tup
     return t, ref
 
 
-def _warn_if_extrapolating(model_path: str, u: Any) -> str | None:
-    """Warn when the commands leave the input range the model file says it was identified on
-    (its ``fit.input_range_V``; files without it say nothing); the warning, or None."""
+def _warn_if_extrapolating(doc: dict[str, Any], u: Any) -> str | None:
+    """Warn when the commands leave the input range the model file (``doc``, its document) says
+    it was identified on (its ``fit.input_range_V``; files without it say nothing); the warning,
+    or None."""
     import warnings
 
     import numpy as np
 
     from ..identify.result import ExtrapolationWarning, beyond_identified
-    from ..modelio import load_model_document
 
-    fit = load_model_document(model_path).get("fit") or {}
+    fit = doc.get("fit") or {}
     said = beyond_identified(float(np.min(u)), float(np.max(u)), fit.get("input_range_V"), "the command")
     if said:
         warnings.warn(said, ExtrapolationWarning, stacklevel=2)
@@ -129,7 +129,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
 
     from .._fileio import check_writable, producer
     from ..export.tables import periodic_table, resample_reference, table_format, write_table
-    from ..modelio import load_model
+    from ..modelio import load_model_document, model_from_dict
 
     check_options(args)
     lo, hi = args.u_min, args.u_max
@@ -138,7 +138,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         fmt = table_format(out)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    model = load_model(args.model)
+    doc = load_model_document(args.model)  # once: the model, and the input range it was identified on
+    model = model_from_dict(doc, source=str(args.model))
     sha = hashlib.sha256(Path(args.model).read_bytes()).hexdigest()
     t, ref = load_reference(args.reference, args.ref_col, args.t_col, args.fs)
     dt_ref = float((t[-1] - t[0]) / (t.size - 1))
@@ -171,7 +172,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
                 f"the command leaves the amplifier range {lo:g}..{hi:g} V at {n_out} of {u.size} samples "
                 f"(first at t = {t[i]:.6g} s: {u[i]:.4g} V); change the reference or pass --clip")
     n_limited = n_out
-    extrapolating = _warn_if_extrapolating(args.model, u)
+    extrapolating = _warn_if_extrapolating(doc, u)
     # three comment lines, as before tables had other formats (readers skip 4 lines: these and the header)
     comments = [producer(), f"model: {args.model} ({model.kind}); sha256 {sha}; reference: {args.reference}",
                 f"units: t in s, x_d in um, u in V; amplifier range {lo:g}..{hi:g} V; clipped samples: {n_limited}; "
