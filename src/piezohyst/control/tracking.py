@@ -302,17 +302,21 @@ def lead_in(feedforward: Any, y_from: float, y_to: float, limits: Any, dt: float
     ``max_samples`` (the commands are then returned as they are).
     """
     n = max(int(math.ceil(min_seconds / dt)), 2)
-    bound = share * limits.max_step
     head = np.empty(0) if before is None else np.asarray(before, dtype=np.float64)[:-1]
     while True:
         k = np.arange(1, n + 1) / n
         desired = y_from + (y_to - y_from) * 0.5 * (1.0 - np.cos(np.pi * k))
         desired = np.concatenate([head, [y_from], desired])
         cmd = feedforward.command(desired)
-        steps = np.abs(np.diff(np.clip(cmd[head.size:], limits.low, limits.high)))
-        if steps.max() <= bound or n > max_samples:
+        if _smooth_enough(cmd[head.size:], limits, share) or n > max_samples:
             return desired, cmd
         n *= 2
+
+
+def _smooth_enough(cmd: FloatArray, limits: Any, share: float) -> bool:
+    """Whether commands (clipped to the range) change by at most ``share * limits.max_step`` per sample."""
+    steps = np.abs(np.diff(np.clip(cmd, limits.low, limits.high)))
+    return steps.size == 0 or bool(steps.max() <= share * limits.max_step)
 
 
 #: The longest lead-in from rest (:func:`lead_in_from_rest`) tried straight from the model's
@@ -334,8 +338,7 @@ def lead_in_from_rest(feedforward: Any, model: Any, y_to: float, limits: Any, dt
     y_rest = float(np.asarray(model.predict(np.full(2, limits.rest), dt if model.dynamic else None))[-1])
     desired, cmd = lead_in(feedforward, y_rest, y_to, limits, dt, share=share,
                            max_samples=max(int(LEAD_IN_MAX_S / dt), 2))
-    steps = np.abs(np.diff(np.clip(cmd, limits.low, limits.high)))
-    if steps.size == 0 or steps.max() <= share * limits.max_step:
+    if _smooth_enough(cmd, limits, share):
         return desired, cmd
     return lead_in_after(feedforward, model, np.full(2, limits.rest), y_to, limits, dt, rise_s=0.01)
 
