@@ -6,8 +6,8 @@ around the model (:func:`small_signal_responses`, :func:`integral_loop_response`
 gain with a phase margin of 60 degrees and a gain margin of 3 on every branch of the hysteresis
 (a phase-margin rule for an integrator with delay). It is then refined on the plant only by
 bounded experiments: small command probes (1 % of the range) at a ladder of gains in small steps,
-stopped at the first gain whose answer overshoots (a loop losing its damping, seen at the probe's
-amplitude) - never by raising the gain until the loop is unstable. Its limits are
+stopped at the first gain whose answer overshoots the value it settles at (a loop losing its
+damping, seen at the probe's amplitude) - never by raising the gain until the loop is unstable. Its limits are
 :class:`SafeTuningOptions`.
 
 **Experiment-based tuning** (:func:`tune_integral_feedback`, the method ``piezohyst reproduce``
@@ -322,8 +322,8 @@ class SafeTuningOptions:
     repeats : int
         Probes (up and down) per gain, averaged: the answer's noise falls as 1/sqrt(2 repeats).
     overshoot_limit : float
-        A gain is well damped when the feedback's averaged answer to the probe overshoots by no
-        more than this (0.3: about 45 degrees of phase margin for a loop dominated by one pair of
+        A gain is well damped when the feedback's averaged answer to the probe overshoots the
+        value it settles at by no more than this fraction of it (:func:`answer_overshoot`; 0.3: about 45 degrees of phase margin for a loop dominated by one pair of
         poles). A trial is aborted at once when the error or the feedback moves four times
         further than the probe explains.
     back_off : float
@@ -386,6 +386,26 @@ def _error_ripple(fbs: FloatArray, fb0: float, gain: float) -> float:
     return float(np.std(np.diff(half)))
 
 
+def answer_overshoot(answer: FloatArray) -> float:
+    """How far the feedback's averaged answer to the probes (:func:`tune_integral_safely`, in
+    units of the probe) overshoots the value it settles at (the mean of its last quarter), as a
+    fraction of that value: what a loop's damping shows.
+
+    On a linear stage the answer settles at 1 (the feedback cancels the probe exactly) and this is
+    its peak less 1. On a hysteretic one it settles elsewhere: a probe up a steep branch, cancelled
+    by a command down a flat one after the reversal, takes several times the probe (3.45 on a
+    Maxwell-slip stage, whose peak was 3.61: 5 % overshoot, read as 261 % against 1, which stopped
+    the ladder at its first gain), and alternating probes ride a minor loop that takes less than
+    the probe (0.73 to 0.79 there: a peak 30 % above that read as none). An answer that never
+    settles at half the probe shows nothing (``MIN_ANSWER``); it is measured against 1.
+    """
+    tail = answer[-max(1, answer.size // 4):]
+    settled = float(np.mean(tail))
+    if not settled >= MIN_ANSWER:
+        return float(answer.max()) - 1.0
+    return (float(answer.max()) - settled) / settled
+
+
 def _smooth(x: FloatArray, w: int) -> FloatArray:
     if w <= 1:
         return x
@@ -432,8 +452,9 @@ def tune_integral_safely(
        one gain after the other from ``start_fraction * ki_model`` up by ``gain_step``, a command
        step of ``probe_fraction`` of the range is applied and removed ``repeats`` times and the
        feedback's averaged answer (which must cancel the probe) is measured. The ladder stops at
-       the first gain whose answer overshoots by more than ``overshoot_limit`` (a loop losing its
-       damping, seen at the probe's small amplitude) or that moves further than the probe can
+       the first gain whose answer overshoots the value it settles at by more than
+       ``overshoot_limit`` of it (:func:`answer_overshoot`: a loop losing its damping, seen at the
+       probe's small amplitude; on a hysteretic stage the answer settles above or below the probe) or that moves further than the probe can
        explain (aborted at once), and never goes past ``max_factor * ki_model`` or the model's
        ultimate gain divided by ``back_off``, both times the reversal ratio over the large-signal
        slope ratio (step 3: what the probes' loop at the flat slope after a reversal must show for
@@ -599,10 +620,10 @@ def tune_integral_safely(
             pid.integral = integral0
             pid.ki = 0.0
             run(n_p, False, 0.0, 0.0, False)
-            overshoot = math.inf
+            overshoot, peak = math.inf, math.nan
         else:
             mean = _smooth(np.mean(answers, axis=0), max(1, int(round(0.5 / (ki * dt)))))
-            overshoot = float(mean.max()) - 1.0
+            overshoot, peak = answer_overshoot(mean), float(mean.max())
         # a loop that amplifies a resonance the model does not have: the probe's answer can look
         # well damped while an oscillation grows underneath it, from the sensor's noise, over
         # the trial (a 180 Hz, 1 % damped stage: overshoot 0.18 at a gain whose oscillation
@@ -619,11 +640,11 @@ def tune_integral_safely(
             pid.integral = integral0
             pid.ki = 0.0
             run(max(n_p, int(round(RING_DOWN_S / dt))), False, 0.0, 0.0, False)
-        answered = aborted or overshoot + 1.0 >= MIN_ANSWER
+        answered = aborted or peak >= MIN_ANSWER
         ok = overshoot <= opt.overshoot_limit and not grows and answered
         trials.append((ki, overshoot))
         experiments.append({"ki": ki, "overshoot": None if aborted else overshoot, "aborted": aborted,
-                            "answered": answered,
+                            "answered": answered, "answer_peak": None if aborted else peak,
                             "samples": n_p, "well_damped": ok, "probe_V": probe,
                             "command_band_V": (state["u_lo"], state["u_hi"]),
                             "hold_error_um": offset, "settled_first": settle,
