@@ -74,6 +74,23 @@ def test_learning_reduces_the_error_of_a_mismatched_model():
     assert out.rmse < no_learning.rmse
 
 
+def test_learning_is_not_cancelled_by_the_feedback():
+    """The same mismatched model with integral feedback on: the learned correction shifts the
+    feedback's reference too. Added to the feedforward's input alone, it was a disturbance the
+    feedback cancelled below its bandwidth (the response of the output to it, P F / (1 + L)):
+    the cycle RMS stayed at 5.0-5.1 nm over eight cycles (seeds 1-3: 0.92-0.98 of the second
+    cycle's); now 3.8-3.9 nm (0.75-0.79), near the rig's 3 nm noise."""
+    rig = ph.VirtualRig(seed=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ph.ClippingWarning)
+        ctl = ph.commission(rig)
+    ctl.fit = ph.fit_rate_pi(ctl.identification.u, ctl.identification.y, rig.dt, taus=[], input_taus=[0.0], delay=0)
+    out = ctl.track(ref(5.0, rig, cycles=8), feedback=True, learning=True)
+    assert out.info["feedback"] and ctl.tuning.ki > 0
+    rms = out.info["cycle_rms_um"]
+    assert rms[-1] < 0.85 * rms[1], rms  # learning starts after the second cycle
+
+
 def test_goal_figures_on_the_default_rig(rig_and_controller):
     # issue #7's table, default seed, the paper's 1/3/5 Hz sinusoids
     rig, ctl = rig_and_controller

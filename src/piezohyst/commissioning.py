@@ -78,7 +78,14 @@ ablation and in ``tests/test_commission.py``):
    of the whole table (play, measure, correct, play again; at most ``max_plays``). It converges
    when ``|Q(w)| |1 - gamma G(w)| < 1`` wherever Q passes, G being the response of the output to
    the correction; with the model's inverse in the loop ``G ~ 1`` below the cut-off, so
-   ``gamma = 0.5`` gives a contraction of about 0.5 per cycle. Where G is not ~1 (above an
+   ``gamma = 0.5`` gives a contraction of about 0.5 per cycle. The correction shifts the
+   feedback's reference as well as the feedforward's input (the feedback follows ``r + c``): added
+   to the feedforward alone, it is a disturbance the integral feedback cancels below its
+   bandwidth, ``G = P F / (1 + L)``, and learning slowed as the gain rose (with feedback and
+   learning at 1/3/5 Hz, over six probe stages the correction in both places gave 0.30/0.64/0.70 %
+   against 0.36/0.69/1.16 % on a rate-dependent slip stage, 1.59 against 1.97 % at 1 Hz on a
+   bipolar Jiles-Atherton one, and no worse elsewhere by more than the cycle-to-cycle spread; on
+   the zoo's asymmetric Bouc-Wen stage, 0.14/0.15 against 0.22/0.30 % at 1/5 Hz). Where G is not ~1 (above an
    unmodelled resonance, where the loop is flat after reversals) it does not, and what decides is
    the figure of merit: on a per-sample plant every cycle is judged on its e_max against the best
    cycle so far, whose correction is kept. A cycle that improves little means the error left in
@@ -575,6 +582,8 @@ class CommissionedController:
         u = np.empty(n)
         # where the range clipped the command, learning cannot act: no correction builds up there
         clipped_at = np.zeros(n + d, dtype=bool)
+        # the correction the target of each reference sample carried: the feedback's reference too
+        c_of = np.zeros(n)
         sat = 0
         learner = _Learning(p, dt, self.learning_gain, self._cutoff(per, dt),
                             self._widest_band(per, dt))
@@ -621,16 +630,18 @@ class CommissionedController:
             if kernel is not None:
                 # the feedforward's state arrays as they are now (reset() replaces them)
                 if not _run_loop_compiled(_loop_kernel_args(plant, ff, pid), plant, guard, ff, pid, watch, r, y, u,
-                                          clipped_at, d, vpu, y_prev, p if learn else n, corr_for,
+                                          clipped_at, c_of, d, vpu, y_prev, p if learn else n, corr_for,
                                           end_of_cycle if learn else None):
                     return None
             else:
                 for k in range(n):
-                    fb = pid.step(r[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
+                    # the feedback follows the corrected reference (module docstring, step 5)
+                    fb = pid.step(r[k - 1] + c_of[k - 1] - y_prev, sat) * vpu if (pid is not None and k > 0) else 0.0
                     j = min(k + d, n - 1)
                     c = corr[j % p] if corr is not None else 0.0
                     if k < fade_end:  # a new correction takes over smoothly, not as a step at the switch
                         c = corr_prev[j % p] + fade(k) * (c - corr_prev[j % p])  # type: ignore[index]
+                    c_of[j] = c
                     target = r[j] + c
                     uk = ff.step(target) + fb
                     try:
@@ -767,7 +778,8 @@ def _loop_kernel_args(plant: Any, ff: Any, pid: Any) -> tuple[Any, ...] | None:
 
 
 def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, pid: Any, watch: LoopWatch,
-                       r: FloatArray, y: FloatArray, u: FloatArray, clipped_at: Any, d: int, vpu: float, y_prev: float,
+                       r: FloatArray, y: FloatArray, u: FloatArray, clipped_at: Any, c_of: FloatArray, d: int, vpu: float,
+                       y_prev: float,
                        chunk: int, corr_for: Callable[[int, int], Any], end_of_chunk: Callable[[int], None] | None) -> bool:
     """The loop of ``_track_step`` compiled (:func:`piezohyst.control.compiled_loop._guarded_loop`), in
     chunks of ``chunk`` samples, reading the correction ``corr_for(k0, k1)`` gives for each, with
@@ -793,7 +805,7 @@ def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, p
             return False
         has_corr = corr is not None
         noise = plant._rng.standard_normal(k1 - k0)
-        args = (k0, k1, rr, y, u, clipped_at, corr if has_corr else np.zeros(1), has_corr, d, vpu,
+        args = (k0, k1, rr, y, u, clipped_at, corr if has_corr else np.zeros(1), has_corr, c_of, d, vpu,
                 plant._p, plant._kv_a, plant._kv_g, plant._amp_a, plant._st, plant._line, plant._consts, noise,
                 *ff_args, ff_lim, ff_lim_state, pid is not None, pid_g, pid_state, g, g_state, wv,
                 bool(watch.watch_chatter), bool(watch.watch_window), w_state, loop_state)

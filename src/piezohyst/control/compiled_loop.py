@@ -257,7 +257,7 @@ def run_compiled(plant: Any, r: FloatArray, feedforward: Any, feedback: Any, *, 
 # -- the commissioned controller's loop ----------------------------------------------------------
 @njit
 def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray, clipped_at: Any,
-                  corr: FloatArray, has_corr: bool, d: int, vpu: float,
+                  corr: FloatArray, has_corr: bool, c_of: FloatArray, d: int, vpu: float,
                   # the rig and its noise for samples k0..k1-1
                   p: FloatArray, kv_a: FloatArray, kv_g: FloatArray, amp_a: float, st: FloatArray,
                   line: FloatArray, consts: FloatArray, noise: FloatArray,
@@ -277,7 +277,8 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
                   loop_state: FloatArray) -> int:  # pragma: no cover
     """Samples ``k0..k1-1`` of the loop of :meth:`CommissionedController._track_step
     <piezohyst.commissioning.CommissionedController._track_step>`: integral feedback on the command,
-    the rate-dependent inverse (P-I or Preisach) fed ``d`` samples ahead (plus the learned correction), the
+    the rate-dependent inverse (P-I or Preisach) fed ``d`` samples ahead (plus the learned correction, which the
+    feedback's reference carries too: ``c_of``), the
     safe layer, the rig, the checks of LoopWatch. The sample where it gave up (anything a check
     or a step would raise on), or :data:`COMPLETED`."""
     n = r.shape[0]
@@ -288,16 +289,18 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
     y_prev = loop_state[0]
     sat = int(loop_state[1])
     for k in range(k0, k1):
-        # -- PID.step(r[k - 1] - y_prev, sat) * volts_per_um
+        # -- PID.step(r[k - 1] + c_of[k - 1] - y_prev, sat) * volts_per_um: the corrected reference
         fb = 0.0
         if fb_on and k > 0:
-            e = r[k - 1] - y_prev
+            e = r[k - 1] + c_of[k - 1] - y_prev
             if not math.isfinite(e):
                 return k
             fb = pid_step(e, sat, pid_g, pid_state) * vpu
         # -- the feedforward, d samples ahead (Compensator.step: the inverse, then its limits)
         j = min(k + d, n - 1)
-        target = r[j] + (corr[j % p_len] if has_corr else 0.0)
+        c = corr[j % p_len] if has_corr else 0.0
+        c_of[j] = c
+        target = r[j] + c
         if not math.isfinite(target):
             return k
         raw = rate_inverse_step(target, ff_kind, ff_f, ff_i1, ff_i2, ff_i3, ff_i4, ff_vlast, ff_a, ff_c, ff_s, ff_b,

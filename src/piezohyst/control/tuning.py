@@ -323,9 +323,10 @@ class SafeTuningOptions:
         Probes (up and down) per gain, averaged: the answer's noise falls as 1/sqrt(2 repeats).
     overshoot_limit : float
         A gain is well damped when the feedback's averaged answer to the probe overshoots the
-        value it settles at by no more than this fraction of it (:func:`answer_overshoot`; 0.3: about 45 degrees of phase margin for a loop dominated by one pair of
-        poles). A trial is aborted at once when the error or the feedback moves four times
-        further than the probe explains.
+        value it settles at by no more than this fraction of it (:func:`answer_overshoot`; 0.3:
+        about 45 degrees of phase margin for a loop dominated by one pair of poles). A trial is
+        aborted at once when the error or the feedback moves four times further than the probe
+        explains.
     back_off : float
         The final gain is the largest well-damped one divided by this.
     """
@@ -454,8 +455,8 @@ def tune_integral_safely(
        feedback's averaged answer (which must cancel the probe) is measured. The ladder stops at
        the first gain whose answer overshoots the value it settles at by more than
        ``overshoot_limit`` of it (:func:`answer_overshoot`: a loop losing its damping, seen at the
-       probe's small amplitude; on a hysteretic stage the answer settles above or below the probe) or that moves further than the probe can
-       explain (aborted at once), and never goes past ``max_factor * ki_model`` or the model's
+       probe's small amplitude; on a hysteretic stage the answer settles above or below the
+       probe) or that moves further than the probe can explain (aborted at once), and never goes past ``max_factor * ki_model`` or the model's
        ultimate gain divided by ``back_off``, both times the reversal ratio over the large-signal
        slope ratio (step 3: what the probes' loop at the flat slope after a reversal must show for
        the tracking loop on the steep branches). A trial that starts with the hold further off the
