@@ -257,7 +257,7 @@ def run_compiled(plant: Any, r: FloatArray, feedforward: Any, feedback: Any, *, 
 # -- the commissioned controller's loop ----------------------------------------------------------
 @njit
 def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray, clipped_at: Any,
-                  corr: FloatArray, has_corr: bool, c_of: FloatArray, d: int, vpu: float,
+                  corr: FloatArray, has_corr: bool, c_of: FloatArray, c_to_feedback: bool, d: int, vpu: float,
                   # the rig and its noise for samples k0..k1-1
                   p: FloatArray, kv_a: FloatArray, kv_g: FloatArray, amp_a: float, st: FloatArray,
                   line: FloatArray, consts: FloatArray, noise: FloatArray,
@@ -278,7 +278,7 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
     """Samples ``k0..k1-1`` of the loop of :meth:`CommissionedController._track_step
     <piezohyst.commissioning.CommissionedController._track_step>`: integral feedback on the command,
     the rate-dependent inverse (P-I or Preisach) fed ``d`` samples ahead (plus the learned correction, which the
-    feedback's reference carries too: ``c_of``), the
+    feedback's reference carries too with ``c_to_feedback``: ``c_of``), the
     safe layer, the rig, the checks of LoopWatch. The sample where it gave up (anything a check
     or a step would raise on), or :data:`COMPLETED`."""
     n = r.shape[0]
@@ -299,7 +299,8 @@ def _guarded_loop(k0: int, k1: int, r: FloatArray, y: FloatArray, u: FloatArray,
         # -- the feedforward, d samples ahead (Compensator.step: the inverse, then its limits)
         j = min(k + d, n - 1)
         c = corr[j % p_len] if has_corr else 0.0
-        c_of[j] = c
+        if c_to_feedback:
+            c_of[j] = c
         target = r[j] + c
         if not math.isfinite(target):
             return k
