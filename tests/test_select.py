@@ -391,3 +391,33 @@ def test_a_small_signal_record_far_from_rest():
     assert ph.fit_model(u, y, 1e-4, kind="rate-dependent").model is not None
     with pytest.raises(ValueError, match=r"more than 100 times its span from 0 V \(rest\)"):
         ph.fit_model(u, y, 1e-4, kind="generalized-duhem")
+
+
+def _slew_limited(u, max_step):
+    """The voltage an amplifier that slews by at most ``max_step`` per sample delivers."""
+    v = np.empty_like(u)
+    last = u[0]
+    for k, x in enumerate(u):
+        last += min(max(x - last, -max_step), max_step)
+        v[k] = last
+    return v
+
+
+def test_a_model_that_misses_the_fast_parts_says_the_amplifier_may_not_follow():
+    """A P-I stage behind an amplifier limited to 2000 V/s (a current limit into the stack's
+    capacitance), fitted on the commissioning excitation (up to 7850 V/s on 0-100 V): the residual
+    concentrates where the input moves fastest, and the fit says so and what to declare; the
+    same stage with an amplifier that follows gets no such warning."""
+    from piezohyst.commissioning import commissioning_excitation
+
+    dt = 1e-4
+    u = np.asarray(commissioning_excitation(dt, (0.0, 100.0)))
+    pi = ph.PrandtlIshlinskii(ph.equal_thresholds(10, 100.0), np.linspace(0.04, 0.01, 10))
+    rng = np.random.default_rng(3)
+    for limited in (True, False):
+        v = _slew_limited(u, 2000.0 * dt) if limited else u
+        y = pi.predict(v) + 0.002 * rng.standard_normal(u.size)
+        fit = ph.fit_model(u, y, dt, kind="pi", delay=0)
+        said = [w for w in fit.warnings if "moves fastest" in w]
+        assert bool(said) == limited, (limited, fit.warnings)
+        assert all("max_step_fraction" in w for w in said)
