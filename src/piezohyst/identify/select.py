@@ -1066,7 +1066,10 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
             out.append(f"the residual depends on the direction of motion (mean {diff:+.3g} between rising and "
                        f"falling input): the model misses part of the loop's shape")
     fast_pct, slow_pct = _residual_by_rate(du, rr, span)
-    if fast_pct > max(RATE_RESIDUAL_RATIO * slow_pct, RATE_RESIDUAL_PERCENT):
+    fit.info["residual_by_rate"] = {"fastest_tenth_percent_of_span": fast_pct, "slower_half_percent_of_span": slow_pct,
+                                    "amplifier_may_not_follow": fast_pct > max(RATE_RESIDUAL_RATIO * slow_pct,
+                                                                               RATE_RESIDUAL_PERCENT)}
+    if fit.info["residual_by_rate"]["amplifier_may_not_follow"]:
         out.append(f"the model misses where the input moves fastest: residual RMS {fast_pct:.2g} % of the span over the "
                    f"fastest tenth of the record, {slow_pct:.2g} % over its slower half. An amplifier that cannot "
                    f"follow the fastest commands (a slew-rate or current limit with the stack's capacitance)? Declare "
