@@ -7,8 +7,8 @@ gain with a phase margin of 60 degrees and a gain margin of 3 on every branch of
 (a phase-margin rule for an integrator with delay). It is then refined on the plant only by
 bounded experiments: small command probes (1 % of the range) at a ladder of gains in small steps,
 stopped at the first gain whose answer overshoots the value it settles at (a loop losing its
-damping, seen at the probe's amplitude) - never by raising the gain until the loop is unstable. Its limits are
-:class:`SafeTuningOptions`.
+damping, seen at the probe's amplitude) - never by raising the gain until the loop is unstable.
+Its limits are :class:`SafeTuningOptions`.
 
 **Experiment-based tuning** (:func:`tune_integral_feedback`, the method ``piezohyst reproduce``
 uses for the paper's experiment, kept as it was). The stage's mechanics are a lightly damped
@@ -456,8 +456,8 @@ def tune_integral_safely(
        the first gain whose answer overshoots the value it settles at by more than
        ``overshoot_limit`` of it (:func:`answer_overshoot`: a loop losing its damping, seen at the
        probe's small amplitude; on a hysteretic stage the answer settles above or below the
-       probe) or that moves further than the probe can explain (aborted at once), and never goes past ``max_factor * ki_model`` or the model's
-       ultimate gain divided by ``back_off``, both times the reversal ratio over the large-signal
+       probe) or that moves further than the probe can explain (aborted at once), and never goes
+       past ``max_factor * ki_model`` or the model's ultimate gain divided by ``back_off``, both times the reversal ratio over the large-signal
        slope ratio (step 3: what the probes' loop at the flat slope after a reversal must show for
        the tracking loop on the steep branches). A trial that starts with the hold further off the
        level than :data:`SETTLED_PROBES` times the probe's effect (the model off at that level,

@@ -1066,15 +1066,18 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
             out.append(f"the residual depends on the direction of motion (mean {diff:+.3g} between rising and "
                        f"falling input): the model misses part of the loop's shape")
     fast_pct, slow_pct = _residual_by_rate(du, rr, span)
-    fit.info["residual_by_rate"] = {"fastest_tenth_percent_of_span": fast_pct, "slower_half_percent_of_span": slow_pct,
-                                    "amplifier_may_not_follow": fast_pct > max(RATE_RESIDUAL_RATIO * slow_pct,
-                                                                               RATE_RESIDUAL_PERCENT)}
-    if fit.info["residual_by_rate"]["amplifier_may_not_follow"]:
-        out.append(f"the model misses where the input moves fastest: residual RMS {fast_pct:.2g} % of the span over the "
-                   f"fastest tenth of the record, {slow_pct:.2g} % over its slower half. An amplifier that cannot "
-                   f"follow the fastest commands (a slew-rate or current limit with the stack's capacitance)? Declare "
-                   f"it (commission's max_step_fraction: the largest step per sample as a fraction of the range) or "
-                   f"identify on a slower record")
+    by_rate: dict[str, Any] = {"fastest_tenth_percent_of_span": fast_pct, "slower_half_percent_of_span": slow_pct,
+                               "amplifier_may_not_follow": fast_pct > max(RATE_RESIDUAL_RATIO * slow_pct,
+                                                                          RATE_RESIDUAL_PERCENT)}
+    if by_rate["amplifier_may_not_follow"]:
+        by_rate["warning"] = (
+            f"the model misses where the input moves fastest: residual RMS {fast_pct:.2g} % of the span over the "
+            f"fastest tenth of the record, {slow_pct:.2g} % over its slower half. An amplifier that cannot follow the "
+            f"fastest commands (a slew-rate or current limit with the stack's capacitance)? Declare it (commission's "
+            f"max_step_fraction: the largest step per sample as a fraction of the range) or identify on a slower "
+            f"record")
+        out.append(by_rate["warning"])
+    fit.info["residual_by_rate"] = by_rate
     mono = monotone_range(uu, y[d:] if d else y)
     if not mono.monotone:
         out.append(f"{mono.describe(float(np.min(uu)), float(np.max(uu)))}: a model fitted over the whole range is "
