@@ -258,11 +258,12 @@ def major_loop_steepest_slope(model: Any, dt: float, *, u_range: tuple[float, fl
     return float(np.max(dy[moving] / du[moving])) if moving.any() else 0.0
 
 
-def approach_direction(u_level: float, u_range: tuple[float, float]) -> float:
-    """+1 when a hold at ``u_level`` is reached from rest (0 V, or the nearest end of the range)
-    rising, -1 falling (a stage that rests at the top of its range, or a bipolar one held below 0 V)."""
+def approach_direction(u_level: float, u_range: tuple[float, float], rest: float | None = None) -> float:
+    """+1 when a hold at ``u_level`` is reached from rest (``rest``; default 0 V, or the nearest end
+    of the range) rising, -1 falling (a stage that rests at the top of its range, or a bipolar one
+    held below 0 V)."""
     lo, hi = u_range
-    return 1.0 if u_level >= min(max(0.0, lo), hi) else -1.0
+    return 1.0 if u_level >= (min(max(0.0, lo), hi) if rest is None else rest) else -1.0
 
 
 def reversal_chord_slope(model: Any, dt: float, *, u_level: float, u_range: tuple[float, float], step: float,
@@ -545,7 +546,7 @@ def tune_integral_safely(
     # too, so that it sees the branch the stage was on, was tried: on stages held after a fall it
     # stopped the ladder at a quarter of the gain and left feedback and learning worse, 1.24 ->
     # 2.24 % at 3 Hz on a relay stage on -10..10 V.)
-    toward = 1.0 if conditioning is not None or u_level >= lim.rest else -1.0
+    toward = 1.0 if conditioning is not None else approach_direction(u_level, (lim.low, lim.high), lim.rest)
     chord = reversal_chord_slope(model, dt, u_level=u_level, u_range=(lim.low, lim.high), step=probe,
                                  approach=toward)
     steepest = major_loop_steepest_slope(model, dt, u_range=(lim.low, lim.high))
