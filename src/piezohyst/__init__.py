@@ -46,7 +46,7 @@ _LAZY: dict[str, str] = {
     "Plant": "plant", "open_loop": "plant", "BufferedPlant": "plant", "CommandLimits": "plant",
     "GuardedPlant": "plant", "SensorDropoutError": "plant", "SensorDropoutWarning": "plant",
     "ClippingWarning": "rig", "RigSettings": "rig", "VirtualRig": "rig",
-    "estimate_period": "signals", "sinusoid": "signals",
+    "estimate_period": "signals", "sinusoid": "signals", "sensor_noise_rms": "signals", "noise_e_max": "signals",
     "Progress": "progress",
 }
 _SUBMODULES = ("signals", "models", "identify", "control", "data", "modelio", "plots", "experiments", "export",
@@ -105,5 +105,5 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
                         SensorDropoutError, SensorDropoutWarning, open_loop)
     from .pso import PSOResult, pso_minimize  # noqa: F401
     from .rig import ClippingWarning, RigSettings, VirtualRig  # noqa: F401
-    from .signals import estimate_period, sinusoid  # noqa: F401
+    from .signals import estimate_period, noise_e_max, sensor_noise_rms, sinusoid  # noqa: F401
     from .progress import Progress  # noqa: F401

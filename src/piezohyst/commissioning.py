@@ -116,6 +116,7 @@ import threading
 import time
 import warnings
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -129,7 +130,7 @@ from .identify.monotone import MonotoneRange, NotMonotoneWarning, monotone_range
 from .models.base import Compensator, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
                     plant_u_range)
-from .signals import estimate_period, sinusoid
+from .signals import estimate_period, noise_e_max, sensor_noise_rms, sinusoid
 
 #: The kinds commissioning chooses from: fast to fit, each with an exact or numerical inverse.
 COMMISSION_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach", "bouc-wen-hysteresis",
@@ -429,6 +430,35 @@ class CommissionedController:
         """``"step"`` (a per-sample loop: feedback possible) or ``"buffered"`` (tables only)."""
         return plant_mode(self.plant)
 
+    @cached_property
+    def sensor_noise_um(self) -> float | None:
+        """The RMS of the sensor's white noise (µm), from what the model leaves of the
+        identification run (:func:`~piezohyst.signals.sensor_noise_rms`); None without one.
+        Tracking runs report the floor it puts under their e_max (``info["noise_floor_percent"]``)."""
+        ds = getattr(self, "identification", None)
+        if ds is None or len(ds) < 3 + self.delay:
+            return None
+        m = self.model
+        pred = np.asarray(m.predict(ds.u, self.plant.dt if m.dynamic else None), dtype=np.float64)
+        d = self.delay
+        left = ds.y[d:] - pred[:pred.size - d]
+        if not np.all(np.isfinite(left)):
+            return None
+        return sensor_noise_rms(left)
+
+    def noise_floor(self, result: TrackingResult) -> dict[str, float] | None:
+        """What the sensor's noise alone would make of ``result``'s e_max: ``sensor_noise_um``
+        and, over the run's scored samples, the e_max that noise reaches with probability one half
+        (:func:`~piezohyst.signals.noise_e_max`) in µm and as % of the reference's span. An e_max
+        near it is as small as this sensor can show; below it, the error is noise."""
+        sigma = self.sensor_noise_um
+        if sigma is None or result.metrics.samples < 1:
+            return None
+        floor = noise_e_max(sigma, result.metrics.samples)
+        span = result.metrics.span
+        return {"sensor_noise_um": sigma, "noise_floor_um": floor,
+                "noise_floor_percent": 100.0 * floor / span if span > 0 else math.nan}
+
     @property
     def max_jump(self) -> float | None:
         """The most (µm) a measurement may change in one sample before a loop holds it as a sensor
@@ -463,6 +493,7 @@ class CommissionedController:
             "ki": self.tuning.ki if self.tuning else None,
             "ki_ultimate": self.tuning.ki_ultimate if self.tuning else None,
             "learning_gain": self.learning_gain, "commissioning_time_s": self.time_s,
+            "sensor_noise_um": self.sensor_noise_um,
             "limits": self._limits().to_dict(),
             "warnings": list(self.fit.warnings),
         }
@@ -531,6 +562,7 @@ class CommissionedController:
             res = self._track_step(r, feedback=True if feedback is None else bool(feedback), learning=learning,
                                    period=period, label=label, conditioning=cond)
         _warn_if_guarded(res, "track")
+        res.info.update(self.noise_floor(res) or {})
         return res
 
     def _cutoff(self, per: int | None, dt: float) -> float:

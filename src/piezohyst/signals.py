@@ -152,3 +152,59 @@ def interpolate_over(y: FloatArray, bad: Any) -> FloatArray:
         i = np.arange(out.size)
         out[mask] = np.interp(i[mask], i[~mask], out[~mask])
     return out
+
+
+#: ``sqrt(6)``: the standard deviation of the second difference ``e[k+1] - 2 e[k] + e[k-1]`` of
+#: white noise of unit standard deviation (variance 1 + 4 + 1).
+_SECOND_DIFFERENCE_GAIN = 6.0 ** 0.5
+#: The median absolute deviation of a normal variable, in standard deviations (``ndtri(0.75)``).
+_MAD_PER_SIGMA = 0.6744897501960817
+
+
+def sensor_noise_rms(y: Any) -> float:
+    """The RMS of the white noise on a measured signal, from the median absolute value of its
+    second differences (a difference-based variance estimator, cf. Gasser, Sroka and
+    Jennen-Steinmetz, Biometrika 73 (1986) 625-633, made robust with the median):
+
+        sigma = median(|y[k+1] - 2 y[k] + y[k-1]|) / (0.6745 sqrt(6))
+
+    The second difference of white noise has a standard deviation of ``sqrt(6) sigma``; that of a
+    smooth motion sampled fast is far smaller, and the median ignores what is not (reversals,
+    ringing, glitches: a minority of samples). Pass what is left after a model's prediction when
+    the motion is fast at this sample rate, so that little but the noise remains. Where more than
+    half the second differences are exactly zero (a sensor that reads in counts larger than its
+    noise), the median says nothing and their RMS is used: the quantisation's own noise.
+
+    >>> rng = np.random.default_rng(0)
+    >>> t = np.arange(20000) * 1e-4
+    >>> round(sensor_noise_rms(5.0 * np.sin(2 * np.pi * t) + 0.003 * rng.standard_normal(t.size)), 4)
+    0.003
+    """
+    x = as_signal("y", y, min_length=3)
+    d2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
+    mad = float(np.median(np.abs(d2)))
+    if mad > 0.0:
+        return mad / (_MAD_PER_SIGMA * _SECOND_DIFFERENCE_GAIN)
+    return float(np.sqrt(np.mean(d2 * d2))) / _SECOND_DIFFERENCE_GAIN
+
+
+def noise_e_max(sigma: float, samples: int) -> float:
+    """The largest magnitude that ``samples`` independent samples of normal noise of RMS ``sigma``
+    reach with probability one half (the median of their maximum): the floor that sensor noise
+    alone puts under a measured e_max over that many samples.
+
+    ``P(max |n_k| < t) = (1 - 2 Q(t / sigma))^samples = 1/2`` gives
+    ``t = sigma ndtri(1 - (1 - 2^(-1/samples)) / 2)``.
+
+    >>> round(noise_e_max(1.0, 1), 3), round(noise_e_max(1.0, 10000), 2)
+    (0.674, 3.98)
+    """
+    from scipy.special import ndtri
+
+    s = as_scalar("sigma", sigma)
+    if not s >= 0.0:
+        raise ValueError(f"sigma must be >= 0, got {sigma!r}")
+    if isinstance(samples, bool) or int(samples) != samples or samples < 1:
+        raise ValueError(f"samples must be a positive whole number, got {samples!r}")
+    tail = -np.expm1(-np.log(2.0) / float(samples))  # 1 - 2^(-1/samples), exact for large samples
+    return s * float(ndtri(1.0 - 0.5 * tail))

@@ -169,13 +169,19 @@ def _print_track(args, rows, rig, extra=None) -> int:  # type: ignore[no-untyped
 
     what = f"reference {args.low:g}-{args.high:g} µm" if args.reference is None else f"reference {args.reference}"
     t = Table(title=f"Tracking on the virtual rig (seed {args.seed}), {what}")
-    for c in ("run", "method", "e_max (µm)", "e_max % of span", "RMSE (µm)", "RMSE % of span", "clipped"):
+    floor = any("noise_floor_percent" in r for r in rows)  # a commissioned controller's runs
+    for c in ("run", "method", "e_max (µm)", "e_max % of span", "RMSE (µm)", "RMSE % of span", "clipped",
+              *(("noise floor %",) if floor else ())):
         t.add_column(c, justify="right" if c not in ("method", "run") else "left")
     for r in rows:
         t.add_row(r["run"], r["method"], f"{r['e_max_um']:.4f}", f"{r['e_max_percent']:.2f}",
-                  f"{r['rmse_um']:.4f}", f"{r['rmse_percent']:.2f}", str(r["clipped_samples"]))
+                  f"{r['rmse_um']:.4f}", f"{r['rmse_percent']:.2f}", str(r["clipped_samples"]),
+                  *((f"{r['noise_floor_percent']:.2f}" if "noise_floor_percent" in r else "",) if floor else ()))
     con = console()
     con.print(t)
+    if floor:
+        con.print("noise floor: the e_max the sensor's noise alone reaches over the scored samples (its RMS, "
+                  "estimated from the identification run, in --json as sensor_noise_um)")
     if extra and extra.get("written"):
         con.print(f"wrote the runs to {extra['written']}")
     return 0

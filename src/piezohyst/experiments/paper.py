@@ -91,6 +91,7 @@ class PaperExperiment:
                     "target_rmse_percent": target[1],
                     "meets_target": run.e_max_percent <= target[0] and run.rmse_percent <= target[1],
                     "paper_e_max_percent": paper[1] if paper else None, "clipped_samples": run.clipped,
+                    "noise_floor_percent": run.info.get("noise_floor_percent"),
                 })
         return rows
 
@@ -416,10 +417,15 @@ def report_markdown(exp: PaperExperiment) -> str:
         for key, name in ABLATION.items():
             cells = [f"{exp.ablation[key][f].e_max_percent:.2f} % / {1e3 * exp.ablation[key][f].rmse:.1f}" for f in exp.freqs]
             L.append(f"| {name} | " + " | ".join(cells) + " |")
-        L += ["", "Sensor noise on the rig is "
-              "3 nm RMS, so an RMSE near 3 nm and an e_max near 4-5 sigma (0.6-0.75 % of a 2 µm span) is the floor "
-              "any controller reaches when judged by the same sensor. Where a means adds nothing it is because the error "
-              "is already at that floor.", ""]
+        floors = [r["noise_floor_percent"] for r in exp.table_piezohyst() if r["feedback"]]
+        sigma = d.get("sensor_noise_um")
+        if sigma is not None and all(f is not None for f in floors):
+            L += ["", f"The commissioning estimated the sensor's noise at {1e3 * sigma:.2g} nm RMS (from what its model "
+                  "leaves of the identification run), so an RMSE near it and an e_max near the noise floor (the e_max "
+                  "that noise alone reaches with probability one half over a run's scored samples: "
+                  + " / ".join(f"{f:.2f}" for f in floors) + f" % of span at {' / '.join(f'{f:g}' for f in exp.freqs)} "
+                  "Hz with feedback) is what any controller reaches when judged by the same sensor. Where a means adds "
+                  "nothing it is because the error is already at that floor.", ""]
     L += ["## The paper's claims, checked", ""]
     for c in exp.claims():
         L.append(f"- **{c['claim']}**: {'holds' if c['holds'] else 'does NOT hold'} on the rig.")

@@ -1,0 +1,91 @@
+"""The sensor-noise floor under a tracking run's e_max: the noise's RMS estimated from a record
+(:func:`piezohyst.signals.sensor_noise_rms`), the e_max that noise alone reaches
+(:func:`piezohyst.signals.noise_e_max`), and what a commissioned controller reports of both."""
+
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import piezohyst as ph
+from piezohyst.signals import noise_e_max, sensor_noise_rms
+
+from .plants.zoo import zoo
+from .test_zoo import steady_range
+
+
+@settings(max_examples=40, deadline=None)
+@given(amplitude=st.floats(0.1, 100.0), freq=st.floats(0.2, 20.0), fs=st.sampled_from([2e3, 5e3, 1e4, 2e4]),
+       sigma_share=st.floats(1e-4, 1e-2), seed=st.integers(0, 2**31 - 1))
+def test_noise_rms_of_a_smooth_motion_plus_white_noise(amplitude, freq, fs, sigma_share, seed):
+    """Law: on a motion that is smooth at the sample rate (second difference far below the
+    noise's), the estimate is the noise's RMS to within the estimator's own scatter (20,000
+    samples: about 1 %; 8 % allowed)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(20_000) / fs
+    sigma = sigma_share * amplitude
+    smooth_d2 = amplitude * (2 * np.pi * freq / fs) ** 2  # largest second difference of the motion
+    if smooth_d2 > 0.05 * sigma:
+        freq = freq * (0.05 * sigma / smooth_d2) ** 0.5  # slow it until the motion is smooth here
+    y = amplitude * np.sin(2 * np.pi * freq * t) + sigma * rng.standard_normal(t.size)
+    assert sensor_noise_rms(y) == pytest.approx(sigma, rel=0.08)
+
+
+def test_noise_rms_ignores_a_few_glitches_and_reversal_kinks():
+    rng = np.random.default_rng(3)
+    t = np.arange(50_000) * 1e-4
+    y = 10.0 * np.abs(((t * 2.0) % 2.0) - 1.0)  # a triangle: a kink at every reversal
+    y = y + 0.004 * rng.standard_normal(t.size)
+    y[rng.choice(t.size, 50, replace=False)] += 5.0  # sensor glitches
+    assert sensor_noise_rms(y) == pytest.approx(0.004, rel=0.05)
+
+
+def test_noise_rms_of_a_sensor_reading_in_counts():
+    """Counts larger than the noise: most second differences are zero, so the median says
+    nothing; the RMS of the second differences measures the quantisation's noise instead (a
+    staircase has ``q^2 / 12``-ish variance per sample, never zero and never above a count)."""
+    t = np.arange(20_000) * 1e-4
+    q = 0.02
+    y = np.round((3.0 * np.sin(2 * np.pi * t) + 0.001 * np.random.default_rng(0).standard_normal(t.size)) / q) * q
+    est = sensor_noise_rms(y)
+    assert 0.0 < est < q
+
+
+def test_noise_e_max_is_the_median_of_the_largest_noise_sample():
+    """Against Monte Carlo (seeded): the median over 4000 draws of max |n_k| over n samples."""
+    rng = np.random.default_rng(11)
+    for n in (1, 30, 3000):
+        draws = np.abs(rng.standard_normal((4000, n))).max(axis=1)
+        assert noise_e_max(2.0, n) == pytest.approx(2.0 * float(np.median(draws)), rel=0.03), n
+    assert noise_e_max(0.0, 100) == 0.0
+
+
+@pytest.mark.parametrize("bad", [(-1.0, 10), (float("nan"), 10), (1.0, 0), (1.0, 2.5), (1.0, True)])
+def test_noise_e_max_refuses_what_is_not_a_noise_and_a_count(bad):
+    with pytest.raises(ValueError, match="sigma|samples"):
+        noise_e_max(*bad)
+
+
+@pytest.mark.slow
+def test_commissioned_controller_reports_the_noise_floor():
+    """On a zoo stage (asymmetric Maxwell-slip, sensor noise 0.01 µm RMS, known), the
+    controller's estimate from its identification run, and every tracking run's floor, computed
+    from it over the run's scored samples."""
+    stage = zoo(seed=0)[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ph.ClippingWarning)
+        ctl = ph.commission(stage, tune=False)
+    assert ctl.sensor_noise_um == pytest.approx(stage.noise_um, rel=0.1)
+    assert ctl.describe()["sensor_noise_um"] == ctl.sensor_noise_um
+    a, b = steady_range(stage)
+    period = int(round(1.0 / stage.dt))
+    out = ctl.track(ph.sinusoid(1.0, 3, a, b, stage.dt), feedback=False, learning=False, period=period)
+    floor = noise_e_max(ctl.sensor_noise_um, out.metrics.samples)
+    assert out.info["sensor_noise_um"] == ctl.sensor_noise_um
+    assert out.info["noise_floor_um"] == pytest.approx(floor)
+    assert out.info["noise_floor_percent"] == pytest.approx(100.0 * floor / out.metrics.span)
+    assert out.summary()["noise_floor_percent"] == out.info["noise_floor_percent"]
+    # the measured error carries the noise: e_max cannot sit far below the floor
+    assert out.e_max >= 0.8 * floor
