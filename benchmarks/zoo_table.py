@@ -4,7 +4,10 @@ For each stage of ``tests/plants/zoo.py``: ``commission()`` (model chosen on the
 data, integral gain tuned by the bounded experiments), then 1, 3 and 5 Hz sinusoids over 10-90 %
 of the stage's steady stroke, as ``tests/test_zoo.py`` runs them: e_max in % of span with the
 feedforward alone (3 cycles, the first left out) and with integral feedback and learning
-(12 cycles, the last 3 scored). A few minutes; nothing here is tuned on the zoo.
+(12 cycles, the last 3 scored); and the floor the stage's sensor noise puts under the
+feedforward's e_max (:meth:`~piezohyst.commissioning.CommissionedController.noise_floor`: the
+e_max the noise alone reaches, with probability one half, over those scored samples; the noise's
+RMS estimated from the identification run). A few minutes; nothing here is tuned on the zoo.
 """
 
 from __future__ import annotations
@@ -27,10 +30,12 @@ def row(stage) -> str:  # noqa: ANN001 - a zoo Stage
         warnings.simplefilter("ignore", ph.ClippingWarning)
         ctl = ph.commission(stage)
     a, b = steady_range(stage)
-    ff, fbl = [], []
+    ff, fbl, floor = [], [], []
     for f in (1.0, 3.0, 5.0):
         per = int(round(1.0 / (f * stage.dt)))
-        ff.append(ctl.track(ph.sinusoid(f, 3, a, b, stage.dt), feedback=False, learning=False, period=per).e_max_percent)
+        run = ctl.track(ph.sinusoid(f, 3, a, b, stage.dt), feedback=False, learning=False, period=per)
+        ff.append(run.e_max_percent)
+        floor.append(run.info.get("noise_floor_percent", float("nan")))
         ref = ph.sinusoid(f, FBL_CYCLES, a, b, stage.dt)
         try:
             out = ctl.track(ref, period=per)
@@ -48,12 +53,12 @@ def row(stage) -> str:  # noqa: ANN001 - a zoo Stage
     if st.get("taus_s"):
         kind += ", lags"
     return (f"| {name} ({kind}; ki {ctl.tuning.ki:.3g} 1/s) | {' / '.join(f'{v:.2f}' for v in ff)} | "
-            f"{' / '.join(f'{v:.2f}' for v in fbl)} |")
+            f"{' / '.join(f'{v:.2f}' for v in fbl)} | {' / '.join(f'{v:.2f}' for v in floor)} |")
 
 
 def main() -> None:
-    print("| stage (chosen model; integral gain) | FF 1 / 3 / 5 Hz | FF+FB+learning 1 / 3 / 5 Hz |")
-    print("|---|---|---|")
+    print("| stage (chosen model; integral gain) | FF 1 / 3 / 5 Hz | FF+FB+learning 1 / 3 / 5 Hz | noise floor (FF) 1 / 3 / 5 Hz |")
+    print("|---|---|---|---|")
     for stage in zoo(seed=0):
         print(row(stage), flush=True)
 
