@@ -2,6 +2,7 @@
 (:func:`piezohyst.signals.sensor_noise_rms`), the e_max that noise alone reaches
 (:func:`piezohyst.signals.noise_e_max`), and what a commissioned controller reports of both."""
 
+import json
 import warnings
 
 import numpy as np
@@ -89,3 +90,38 @@ def test_commissioned_controller_reports_the_noise_floor():
     assert out.summary()["noise_floor_percent"] == out.info["noise_floor_percent"]
     # the measured error carries the noise: e_max cannot sit far below the floor
     assert out.e_max >= 0.8 * floor
+
+
+def test_fit_residual_pairs_the_output_with_the_delayed_prediction():
+    """A P-I stage whose sensor lags by 3 samples, read noise-free: the fit finds the delay, and its
+    residual pairs y[k + 3] with the prediction at k (n - 3 samples; the loop is fitted closely)."""
+    u = ph.sinusoid(2.0, 3, 0.0, 100.0, 1e-3) * np.linspace(1.0, 0.4, 1500)
+    truth = ph.fit_pi(u, np.sqrt(u + 1.0)).model  # some monotone P-I loop
+    y = np.concatenate([np.zeros(3), truth.simulate(u)[:-3]])
+    fit = ph.fit_pi(u, y, delay="auto")
+    assert fit.delay == 3
+    r = fit.residual(u, y)
+    assert r.size == u.size - 3
+    np.testing.assert_array_equal(r, y[3:] - fit.predict(u)[:-3])
+    assert np.abs(r).max() < 1e-4 * np.ptp(y)
+    with pytest.raises(ValueError, match="same length"):
+        fit.residual(u, y[:-1])
+
+
+def test_identify_reports_the_noise_it_cannot_take_out(tmp_path, capsys):
+    """`piezohyst identify` on a P-I record with 0.01 µm of white sensor noise (known): the white part
+    of the residual is that noise, and what the model misses beyond it is small."""
+    from piezohyst.cli import main
+
+    dt = 1e-3
+    u = 50.0 + 50.0 * np.sin(2 * np.pi * np.arange(8000) * dt - np.pi / 2) * np.linspace(1.0, 0.3, 8000)
+    truth = ph.fit_pi(u, np.sqrt(u + 1.0)).model  # some monotone P-I loop
+    y = truth.simulate(u) + 0.01 * np.random.default_rng(5).standard_normal(u.size)
+    path = tmp_path / "rec.csv"
+    np.savetxt(path, np.column_stack([np.arange(u.size) * dt, u, y]), delimiter=",", header="t,u,y", comments="")
+    assert main(["identify", str(path), "--model", "pi", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["sensor_noise_rms"] == pytest.approx(0.01, rel=0.1)
+    assert out["fit_rmse_beyond_noise"] < 0.5 * out["sensor_noise_rms"]
+    assert main(["identify", str(path), "--model", "pi"]) == 0
+    assert "sensor noise" in capsys.readouterr().out

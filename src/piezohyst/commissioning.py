@@ -438,10 +438,7 @@ class CommissionedController:
         ds = getattr(self, "identification", None)
         if ds is None or len(ds) < 3 + self.delay:
             return None
-        m = self.model
-        pred = np.asarray(m.predict(ds.u, self.plant.dt if m.dynamic else None), dtype=np.float64)
-        d = self.delay
-        left = ds.y[d:] - pred[:pred.size - d]
+        left = self.fit.residual(ds.u, ds.y, self.plant.dt if self.model.dynamic else None)
         if not np.all(np.isfinite(left)):
             return None
         return sensor_noise_rms(left)

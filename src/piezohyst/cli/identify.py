@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
 
 from ._common import (UsageError, add_data_options, console, guarded, load_cli_dataset, nonnegative_int, positive_int,
@@ -118,9 +119,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
                          f"data; check their units and scale")
     vrows = []
     for name, vd, first in validation:
-        pred = fit.predict(vd.u, vd.dt)
         d = fit.delay
-        resid = (vd.y[d:] - pred[: pred.size - d] if d else vd.y - pred)[max(first - d, 0):]
+        resid = fit.residual(vd.u, vd.y, vd.dt)[max(first - d, 0):]
         if resid.size < 1:
             raise UsageError(f"{name}: no sample left to validate on after the model's delay of {d} samples")
         span = float(np.ptp(vd.y[first:]))
@@ -129,16 +129,20 @@ def cmd_identify(args: argparse.Namespace) -> int:
                       "rmse_percent_of_span": 100.0 * float(np.sqrt(np.mean(resid**2))) / span if span > 0 else None,
                       "rmse_offset_refit": float(np.std(resid)),
                       "max_abs_error": float(np.max(np.abs(resid - resid.mean())))})
+    # the white part of the fit's residual: the sensor's noise, which no model can take out
+    noise = ph.sensor_noise_rms(fit.residual(train.u, train.y, train.dt)) if len(train) > fit.delay + 2 else None
+    beyond = math.sqrt(max(fit.rmse**2 - noise**2, 0.0)) if noise is not None else None
     out_path = None
     if args.output:
         out_path = str(ph.save_model(fit.model, args.output, fit=fit, dataset=train, force=args.force))
     result = {"model": fit.model.kind, "fit": fit.summary(), "parameters": fit.model.to_dict(),
               "invertible": bool(fit.model.is_invertible), "validation": vrows, "warnings": list(fit.warnings),
+              "sensor_noise_rms": noise, "fit_rmse_beyond_noise": beyond,
               "train_samples": len(train), "written": out_path}
     if args.json:
         print_json(result)
         return 0
-    _print_report(fit, vrows, out_path, ds, train)
+    _print_report(fit, vrows, out_path, ds, train, noise)
     return 0
 
 
@@ -159,7 +163,8 @@ def _select(ph: Any, train: Any, kind: str, args: argparse.Namespace, vsets: lis
                             **opts)
 
 
-def _print_report(fit: Any, vrows: list[dict[str, Any]], out_path: str | None, ds: Any, train: Any) -> None:
+def _print_report(fit: Any, vrows: list[dict[str, Any]], out_path: str | None, ds: Any, train: Any,
+                  noise: float | None = None) -> None:
     from rich.table import Table
 
     con = console()
@@ -199,6 +204,10 @@ def _print_report(fit: Any, vrows: list[dict[str, Any]], out_path: str | None, d
     span = float(train.y.max() - train.y.min())
     con.print(f"fit RMSE {fit.rmse:.5g} (units of y; {100 * fit.rmse / span:.2f} % of span) | {fit.method} | "
               f"{fit.time_s:.2f} s" + (f" | delay {fit.delay} samples" if fit.delay else ""))
+    if noise is not None and noise > 0.0:
+        beyond = math.sqrt(max(fit.rmse**2 - noise**2, 0.0))
+        con.print(f"sensor noise {noise:.4g} RMS (the white part of the residual): the fit RMSE is {fit.rmse / noise:.3g}x "
+                  f"it; what the model misses is about {beyond:.4g} RMS")
     if "pso_rmse" in fit.info and fit.method.endswith("polish"):
         con.print(f"PSO alone reached RMSE {fit.info['pso_rmse']:.5g}; the local refinement brought it to {fit.rmse:.5g}")
     for v in vrows:

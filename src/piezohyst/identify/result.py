@@ -133,6 +133,18 @@ class FitResult:
                     warnings.warn(said, ExtrapolationWarning, stacklevel=2)
         return out  # type: ignore[no-any-return]
 
+    def residual(self, u: Any, y: Any, dt: float | None = None) -> FloatArray:
+        """``y`` less the model's prediction for ``u`` (:meth:`predict`, from rest), paired as the
+        fit pairs them: the sensor lags by :attr:`delay` samples, so ``y[k + delay]`` meets the
+        prediction at ``k``; ``len(y) - delay`` samples."""
+        uu = as_signal("u", u, min_length=1)
+        yy = as_signal("y", y, min_length=1)
+        if yy.size != uu.size:
+            raise ValueError(f"u and y must have the same length, got {uu.size} and {yy.size}")
+        pred = np.asarray(self.predict(uu, dt), dtype=np.float64)
+        d = self.delay
+        return yy[d:] - pred[: pred.size - d] if d else yy - pred
+
     def plot(self, u: Any, y: Any = None, dt: float | None = None, *, split: int | None = None,
              title: str | None = None, data_label: str = "measured") -> Any:
         """The model against a record: loops, time series and the residual
