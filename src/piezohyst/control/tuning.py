@@ -56,6 +56,10 @@ class TuningResult:
     ki_model: float | None = None
     margins: dict[str, Any] = field(default_factory=dict)
     experiments: tuple[dict[str, Any], ...] = ()
+    #: a commissioned controller's checks of the gain on a tracking run
+    #: (:meth:`~piezohyst.commissioning.CommissionedController.tune`): ki, the feedback's and the
+    #: feedforward's RMS error and their ratio, one per gain tried
+    verification: tuple[dict[str, Any], ...] = ()
 
     def pid(self, dt: float, **kw: Any) -> PID:
         return PID(self.kp, self.ki, self.kd, dt, **kw)
