@@ -108,7 +108,12 @@ ablation and in ``tests/test_commission.py``):
    or negative exactly where those features are, learning them does not converge, and a widened
    band turned single cycles 50-80 % worse on such a stage (on the zoo's "falling after reversal"
    stage, over four noise seeds, the worst e_max with feedback and learning was 1.20 % with
-   widening, 1.02 % without). A cycle worse
+   widening, 1.02 % without); nor in a run's last cycles: a widening is tried only while three
+   cycles are left (the one it is tried in, the one after a revert, which still carries its
+   transient, and one more), so a run does not end on one (the zoo's Maxwell-slip stage behind a
+   180 Hz resonance, 12 cycles at 3 Hz: its band widened past the resonance three cycles before
+   the end, and the last three cycles read 0.15 / 0.71 / 0.66 % against 0.15 / 0.14 / 0.13 %
+   now). A cycle worse
    than the best by more than 15 % restores the best correction and either narrows the band back
    (if it had been widened since) or halves the gain: what is left then does not repeat (noise, a
    loop that hunts), and a smaller gain averages it over cycles instead of copying it into the
@@ -364,6 +369,9 @@ class _Learning:
     STALL = 0.05
     MAX_HALVINGS = 3
     PATIENCE = 3
+    #: cycles a run must still have for a wider band to be tried: the one it is tried in, the one
+    #: after a revert (which still carries the tried one's transient), and one to be judged by
+    CYCLES_TO_UNDO_WIDENING = 3
 
     def __init__(self, p: int, dt: float, gain: float, cutoff: float, cutoff_max: float):
         self.dt = dt
@@ -728,6 +736,9 @@ class CommissionedController:
             # learning starts from the second cycle
             if learning_on and len(cycle_rms) > 1:
                 corr_prev = corr
+                # a wider band is tried only while the run has cycles left to undo it: the cycle it
+                # is tried in, and after a revert the one that still carries its transient
+                learner.widen = learner.widen and (n - (k + 1)) // p >= _Learning.CYCLES_TO_UNDO_WIDENING
                 corr, learning_on = learner.update(corr, e, e_max)  # type: ignore[arg-type]
                 # over one period of the learning's band: the blend adds nothing above it
                 fade_start, fade_end = k + 1, k + 1 + max(2, int(math.ceil(1.0 / (learner.cutoff * dt))))
