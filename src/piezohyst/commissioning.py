@@ -178,16 +178,22 @@ def _check_excitation_dt(dt: float) -> None:
             f"piezohyst.signals.MAX_SAMPLES ({MAX_SAMPLES:.3g}). Is dt in seconds?")
 
 
+def _fastest_full_range_hz(limits: CommandLimits, dt: float) -> float:
+    """The fastest full-range sinusoid whose command changes by at most half the step limit per
+    sample: one of f Hz changes by at most ``pi f dt (high - low)``."""
+    return 0.5 * limits.max_step / (math.pi * dt * limits.span)
+
+
 def _excitation_parts(dt: float, limits: CommandLimits) -> tuple[list[FloatArray], list[FloatArray]]:
     """The segments fitted on and the segments chosen on (module docstring, step 1)."""
     _check_excitation_dt(dt)
     lo, hi = limits.low, limits.high
     mid, amp = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    # a full-range sinusoid of f Hz changes by at most pi f dt (hi - lo) per sample. (At low
-    # sample rates the faster ones are left with a few samples a period: as commands, steps
-    # between far-apart levels, which excite a hysteresis as well as a sinusoid; capping them at 20
-    # samples a period lost a P-I plant's exact fit at 20 Hz sampling, 0 -> 4.4 % e_max.)
-    f_cap = 0.5 * limits.max_step / (math.pi * dt * (hi - lo))
+    # no sinusoid faster than the step limit allows. (At low sample rates the faster ones are
+    # left with a few samples a period: as commands, steps between far-apart levels, which excite
+    # a hysteresis as well as a sinusoid; capping them at 20 samples a period lost a P-I plant's
+    # exact fit at 20 Hz sampling, 0 -> 4.4 % e_max.)
+    f_cap = _fastest_full_range_hz(limits, dt)
 
     def sine(f: float, cycles: float) -> FloatArray:
         return sinusoid(min(f, f_cap), cycles, lo, hi, dt)
@@ -545,8 +551,7 @@ class CommissionedController:
         dt = self.plant.dt
         lim = self._limits()
         lo, hi = (float(v) for v in np.percentile(self.identification.y, [0.5, 99.5]))
-        f_cap = 0.5 * lim.max_step / (math.pi * dt * lim.span) if lim.span > 0 else VERIFY_HZ
-        f = min(VERIFY_HZ, f_cap)
+        f = min(VERIFY_HZ, _fastest_full_range_hz(lim, dt)) if lim.span > 0 else VERIFY_HZ
         ref = sinusoid(f, 2, lo + 0.1 * (hi - lo), lo + 0.9 * (hi - lo), dt)
         return ref, max(int(round(1.0 / (f * dt))), 1)
 
