@@ -129,7 +129,7 @@ import math
 import threading
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any, Callable, Sequence
 
@@ -562,8 +562,6 @@ class CommissionedController:
         tu = self.tuning
         if tu is None or not tu.ki > 0:
             return
-        import dataclasses
-
         ref, period = self.verification_reference()
         checks: list[dict[str, Any]] = []
         with warnings.catch_warnings():
@@ -580,7 +578,7 @@ class CommissionedController:
                                "ratio": ratio})
                 if ratio <= FEEDBACK_WORSE_RATIO:
                     break
-                tu = dataclasses.replace(tu, ki=tu.ki / 2.0 if i < VERIFY_HALVINGS else 0.0)
+                tu = replace(tu, ki=tu.ki / 2.0 if i < VERIFY_HALVINGS else 0.0)
         halved = len(checks) - 1 if checks[-1]["ratio"] <= FEEDBACK_WORSE_RATIO else len(checks)
         f_hz = 1.0 / (period * self.plant.dt)
         note = (f"; verified on a {f_hz:.3g} Hz run over 10-90 % of the stroke: feedback RMS "
@@ -590,7 +588,7 @@ class CommissionedController:
                      f"{checks[0]['ki']:.4g}: the loop does worse than no loop on the branches)" if tu.ki > 0
                      else f"; no feedback (it was {checks[0]['ratio']:.2f}x at ki = {checks[0]['ki']:.4g} and stayed "
                           f"above {FEEDBACK_WORSE_RATIO:g}x after {VERIFY_HALVINGS} halvings)")
-        self.tuning = dataclasses.replace(tu, method=tu.method + note, verification=tuple(checks),
+        self.tuning = replace(tu, method=tu.method + note, verification=tuple(checks),
                                           margins=tu.margins if not halved else {})
 
     def feedforward(self) -> Compensator:
