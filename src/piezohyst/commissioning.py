@@ -531,7 +531,10 @@ class CommissionedController:
     def tune(self, options: SafeTuningOptions | None = None) -> dict[str, Any]:
         """Tune the integral feedback on the plant (module docstring, step 4), as ``commission``
         does with ``tune=True``: for a controller commissioned with ``tune=False``, or to tune
-        again with other ``options``. Returns what the safe layer counted during the experiments."""
+        again with other ``options``. The bounded experiments at a hold give the gain; a tracking
+        run then checks it on the branches (:meth:`verification_reference`) and halves it while
+        the feedback does worse than the feedforward alone (``tuning.verification`` lists the
+        checks). Returns what the safe layer counted during the experiments."""
         if self.mode != "step":
             raise ValueError(NO_LOOP.replace("no feedback: ", "cannot tune feedback: "))
         tguard = GuardedPlant(self.plant, self._limits(), max_jump=self.max_jump)
