@@ -142,7 +142,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if args.json:
         print_json(result)
         return 0
-    _print_report(fit, vrows, out_path, ds, train, noise)
+    _print_report(fit, vrows, out_path, ds, train, noise, beyond)
     return 0
 
 
@@ -164,7 +164,7 @@ def _select(ph: Any, train: Any, kind: str, args: argparse.Namespace, vsets: lis
 
 
 def _print_report(fit: Any, vrows: list[dict[str, Any]], out_path: str | None, ds: Any, train: Any,
-                  noise: float | None = None) -> None:
+                  noise: float | None = None, beyond: float | None = None) -> None:
     from rich.table import Table
 
     con = console()
@@ -204,8 +204,7 @@ def _print_report(fit: Any, vrows: list[dict[str, Any]], out_path: str | None, d
     span = float(train.y.max() - train.y.min())
     con.print(f"fit RMSE {fit.rmse:.5g} (units of y; {100 * fit.rmse / span:.2f} % of span) | {fit.method} | "
               f"{fit.time_s:.2f} s" + (f" | delay {fit.delay} samples" if fit.delay else ""))
-    if noise is not None and noise > 0.0:
-        beyond = math.sqrt(max(fit.rmse**2 - noise**2, 0.0))
+    if noise is not None and noise > 0.0 and beyond is not None:
         con.print(f"sensor noise {noise:.4g} RMS (the white part of the residual): the fit RMSE is {fit.rmse / noise:.3g}x "
                   f"it; what the model misses is about {beyond:.4g} RMS")
     if "pso_rmse" in fit.info and fit.method.endswith("polish"):
