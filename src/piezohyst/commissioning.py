@@ -140,7 +140,8 @@ from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
-from .identify.monotone import MonotoneRange, NotMonotoneWarning, monotone_range, rises_with_input
+from .identify.monotone import (DeadRange, DeadRangeWarning, MonotoneRange, NotMonotoneWarning, dead_range,
+                                monotone_range, rises_with_input)
 from .models.base import Compensator, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
                     plant_u_range)
@@ -988,6 +989,30 @@ def _commission_where_monotone(plant: Any, call: dict[str, Any], mono: MonotoneR
         raise ValueError(f"{what}; {fix}")
     warnings.warn(f"{what}. Commissioning again within {new_lo:.4g}..{new_hi:.4g} V, the controller's range "
                   f"from now on ({100 * MONOTONE_MARGIN:g} % of the range inside that)", NotMonotoneWarning, stacklevel=3)
+    return _commission_within(plant, call, new_lo, new_hi)
+
+
+#: How far beyond the edge of a dead part of the range (:func:`~piezohyst.identify.monotone.dead_range`)
+#: the narrowed range reaches (fraction of the range): the stage's state is driven into the dead
+#: part a little, as it is where the output leaves it.
+DEAD_MARGIN = 0.05
+
+
+def _narrowed_to_moving(dead: DeadRange, limits: CommandLimits) -> tuple[float, float] | None:
+    """The range commissioning moves to where ``dead`` was found: the part where the stage moves,
+    :data:`DEAD_MARGIN` beyond it, and the rest command always inside; None when that is not
+    narrower by at least the margin (the rest command at a dead end keeps it)."""
+    lo, hi = limits.low, limits.high
+    margin = DEAD_MARGIN * (hi - lo)
+    new_lo = lo if dead.low is None else max(lo, min(dead.low - margin, limits.rest))
+    new_hi = hi if dead.high is None else min(hi, max(dead.high + margin, limits.rest))
+    if (new_lo - lo) + (hi - new_hi) < margin:
+        return None
+    return new_lo, new_hi
+
+
+def _commission_within(plant: Any, call: dict[str, Any], new_lo: float, new_hi: float) -> "CommissionedController":
+    """``commission`` again with ``u_range=(new_lo, new_hi)``, once (a narrowing never narrows again)."""
     _narrowing.active = True
     try:
         return commission(plant, **{**call, "u_range": (new_lo, new_hi)})
@@ -1105,6 +1130,23 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     mono = monotone_range(ds.u[warmup:], ds.y[warmup:])
     if not mono.monotone:
         return _commission_where_monotone(plant, call, mono, limits, excitation is not None)
+    dead = dead_range(ds.u[warmup:], ds.y[warmup:])
+    if dead.found:
+        narrowed = _narrowed_to_moving(dead, limits)
+        what = dead.describe(limits.low, limits.high)
+        if narrowed is not None and excitation is None and not getattr(_narrowing, "active", False):
+            # the excitation's loops are centred on the range: over a range half dead they miss the
+            # loops a tracking run makes where the stage moves (a unipolar element on -200..200 V:
+            # feedforward 6.1 / 5.0 / 4.5 % e_max at 1 / 3 / 5 Hz, 1.1 / 0.8 / 0.9 % when
+            # commissioned where it moves)
+            warnings.warn(f"{what}. Commissioning again within {narrowed[0]:.4g}..{narrowed[1]:.4g} V, the "
+                          f"controller's range from now on ({100 * DEAD_MARGIN:g} % of the range beyond where it "
+                          "moves, and the rest command)", DeadRangeWarning, stacklevel=2)
+            return _commission_within(plant, call, *narrowed)
+        if narrowed is not None and excitation is not None:
+            warnings.warn(f"{what}: the excitation given spends that part for nothing; "
+                          f"commission(plant, u_range=({narrowed[0]:.4g}, {narrowed[1]:.4g})) identifies where it "
+                          "moves", DeadRangeWarning, stacklevel=2)
     if n_id is not None:
         # fit on the identification part, choose on the rest; the winner is refitted on all of it
         fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, holdout=int(ds.u.size - n_id),
