@@ -58,7 +58,7 @@ class TuningResult:
     experiments: tuple[dict[str, Any], ...] = ()
     #: a commissioned controller's checks of the gain on a tracking run
     #: (:meth:`~piezohyst.commissioning.CommissionedController.tune`): ki, the feedback's and the
-    #: feedforward's RMS error and their ratio, one per gain tried
+    #: feedforward's RMS error and e_max and their ratios, one per gain tried
     verification: tuple[dict[str, Any], ...] = ()
 
     def pid(self, dt: float, **kw: Any) -> PID:
