@@ -74,11 +74,12 @@ ablation and in ``tests/test_commission.py``):
    a 5 Hz sinusoid over 10-90 % of the identified stroke, tracked with the feedback and with the
    feedforward alone; where the feedback's RMS error is more than :data:`FEEDBACK_WORSE_RATIO`
    times the feedforward's, or its e_max more than :data:`FEEDBACK_WORSE_EMAX_RATIO` times, the
-   gain is halved (at most :data:`VERIFY_HALVINGS` times, then no feedback). Found on two Maxwell-slip stages with a lightly damped resonance (1 kHz at 2.8 %,
-   180 Hz at 1 %): the probes at the hold stayed well damped, but on the steep part of the rising
-   branch the loop rang at the resonance, and tracking with feedback was worse than without
-   (5 Hz: e_max 1.80 against 0.65 %, 0.72 against 0.42 %); on 31 other stages and the rig the ratio
-   was 0.05-1.12. A plant that only plays tables has no per-sample loop:
+   gain is halved (at most :data:`VERIFY_HALVINGS` times, then no feedback). Found on two
+   Maxwell-slip stages with a lightly damped resonance (1 kHz at 2.8 %, 180 Hz at 1 %): the
+   probes at the hold stayed well damped, but on the steep part of the rising branch the loop
+   rang at the resonance, and tracking with feedback was worse than without (5 Hz: e_max 1.80
+   against 0.65 %, 0.72 against 0.42 %); on 31 other stages and the rig the RMS ratio was
+   0.05-1.12. A plant that only plays tables has no per-sample loop:
    it gets no feedback, and its results say so (``info["feedback"]`` is False with the reason).
 5. **Iterative learning** for references that repeat. On a per-sample plant, after each cycle
    the measured error corrects the feedforward's input for the next one, ``c <- Q(c + gamma e)``,
@@ -1156,8 +1157,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         if narrowed is not None and excitation is None and not getattr(_narrowing, "active", False):
             # the excitation's loops are centred on the range: over a range half dead they miss the
             # loops a tracking run makes where the stage moves (a unipolar element on -200..200 V:
-            # feedforward 6.1 / 5.0 / 4.5 % e_max at 1 / 3 / 5 Hz, 1.1 / 0.8 / 0.9 % when
-            # commissioned where it moves)
+            # feedforward 6.1 / 5.0 / 4.5 % e_max at 1 / 3 / 5 Hz, 1.7 / 1.1 / 1.1 % commissioned
+            # again within -36..200 V)
             warnings.warn(f"{what}. Commissioning again within {narrowed[0]:.4g}..{narrowed[1]:.4g} V, the "
                           f"controller's range from now on ({100 * DEAD_MARGIN:g} % of the range beyond where it "
                           "moves, and the rest command)", DeadRangeWarning, stacklevel=2)
