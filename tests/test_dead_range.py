@@ -19,7 +19,7 @@ import piezohyst as ph
 from piezohyst.commissioning import commissioning_excitation
 from piezohyst.identify.monotone import DEAD_BINS, DeadRangeWarning, dead_range
 
-from .plants.zoo import DeadZoneSaturatedPlay, Stage, zoo
+from .plants.zoo import AsymmetricMaxwellSlip, DeadZoneSaturatedPlay, Stage, zoo
 from .test_zoo import steady_range
 
 
@@ -111,13 +111,13 @@ def test_commission_identifies_where_the_stage_moves():
         warnings.simplefilter("always")
         ctl = ph.commission(stage, tune=False)
     assert any(issubclass(w.category, DeadRangeWarning) for w in caught)
-    # narrowed to 5 % of the range beyond where it moves, the rest command (0 V) inside
+    # narrowed to a bin (2 % of the range) beyond where it moves, the rest command (0 V) inside
     assert -60.0 < ctl.limits.low < 0.0 and ctl.limits.high == 200.0
     a, b = steady_range(stage)
     per = int(round(1.0 / stage.dt))
     ff = ctl.track(ph.sinusoid(1.0, 3, a, b, stage.dt), feedback=False, learning=False, period=per)
-    # over the whole range: 6.1 % (module docstring); here 1.7 %
-    assert ff.e_max_percent < 2.5
+    # over the whole range: 6.1 % (module docstring); here 1.1 %
+    assert ff.e_max_percent < 2.0
 
 
 def test_an_excitation_of_ones_own_is_kept_and_the_range_named():
@@ -129,3 +129,37 @@ def test_an_excitation_of_ones_own_is_kept_and_the_range_named():
     named = [str(w.message) for w in caught if issubclass(w.category, DeadRangeWarning)]
     assert named and "u_range=(" in named[0]
     assert ctl.limits.low == -200.0
+
+
+class _AgainstAStop:
+    """An element whose output cannot pass ``top`` (the stage reaches a mechanical stop)."""
+
+    def __init__(self, inner: object, top: float):
+        self.inner, self.top = inner, top
+
+    def reset(self) -> None:
+        self.inner.reset()  # type: ignore[attr-defined]
+
+    def step(self, v: float) -> float:
+        return min(self.inner.step(v), self.top)  # type: ignore[attr-defined]
+
+
+def test_a_stage_against_its_stop_is_commissioned_below_it():
+    """Maxwell-slip elements against a stop at 60 % of their stroke: the top of the range is
+    dead, and the slip elements' state goes on moving there where the output does not. Over the
+    whole range the feedforward missed by 7.6 / 7.9 / 8.1 % (1 / 3 / 5 Hz) and feedback with
+    learning by 2.6 / 3.0 / 3.8 %; commissioned below the stop, 1.8 / 2.0 / 2.0 % and 0.4 / 0.6 / 0.6 %."""
+    stage = Stage("slip against a stop", _AgainstAStop(AsymmetricMaxwellSlip(100.0, 20.0), 12.0), 1e-4, (0.0, 100.0),
+                  tau_amp=1e-4, kv=((0.03, 0.1),), fn_hz=1500.0, zeta=0.05, noise_um=0.003, delay_samples=2, seed=1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ctl = ph.commission(stage)
+    assert any(issubclass(w.category, DeadRangeWarning) for w in caught)
+    assert ctl.limits.low == 0.0 and 60.0 < ctl.limits.high < 90.0
+    a, b = steady_range(stage)
+    per = int(round(1.0 / stage.dt))
+    ff = ctl.track(ph.sinusoid(1.0, 3, a, b, stage.dt), feedback=False, learning=False, period=per)
+    assert ff.e_max_percent < 3.0
+    ref = ph.sinusoid(1.0, 6, a, b, stage.dt)
+    out = ctl.track(ref, period=per)
+    assert 100.0 * np.abs(out.error[4 * per:]).max() / np.ptp(ref) < 1.0

@@ -141,7 +141,7 @@ from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
-from .identify.monotone import (DeadRange, DeadRangeWarning, MonotoneRange, NotMonotoneWarning, dead_range,
+from .identify.monotone import (DEAD_BINS, DeadRange, DeadRangeWarning, MonotoneRange, NotMonotoneWarning, dead_range,
                                 monotone_range, rises_with_input)
 from .models.base import Compensator, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
@@ -1013,9 +1013,13 @@ def _commission_where_monotone(plant: Any, call: dict[str, Any], mono: MonotoneR
 
 
 #: How far beyond the edge of a dead part of the range (:func:`~piezohyst.identify.monotone.dead_range`)
-#: the narrowed range reaches (fraction of the range): the stage's state is driven into the dead
-#: part a little, as it is where the output leaves it.
-DEAD_MARGIN = 0.05
+#: the narrowed range reaches (fraction of the range): one bin of the detection, against an edge
+#: found a bin inside where the stage moves. No more: beyond a stop, the stage's hidden state moves
+#: on where its output does not (a Maxwell-slip stage against a stop at 60 % of its stroke,
+#: feedforward at 1 / 3 / 5 Hz with margins of 0, 2, 5 and 10 % of the range: 2.0 / 2.0 / 1.8,
+#: 1.8 / 2.0 / 2.0, 3.1 / 3.2 / 3.1 and 4.2 / 4.4 / 4.4 % e_max; a unipolar element on -200..200 V:
+#: 1.4 / 1.0 / 1.0, 1.1 / 0.7 / 0.7, 1.7 / 1.1 / 1.1 and 1.8 / 1.4 / 1.5 %).
+DEAD_MARGIN = 1.0 / DEAD_BINS
 
 
 def _narrowed_to_moving(dead: DeadRange, limits: CommandLimits) -> tuple[float, float] | None:
@@ -1157,8 +1161,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         if narrowed is not None and excitation is None and not getattr(_narrowing, "active", False):
             # the excitation's loops are centred on the range: over a range half dead they miss the
             # loops a tracking run makes where the stage moves (a unipolar element on -200..200 V:
-            # feedforward 6.1 / 5.0 / 4.5 % e_max at 1 / 3 / 5 Hz, 1.7 / 1.1 / 1.1 % commissioned
-            # again within -36..200 V)
+            # feedforward 6.1 / 5.0 / 4.5 % e_max at 1 / 3 / 5 Hz, 1.1 / 0.7 / 0.7 % commissioned
+            # again within -24..200 V)
             warnings.warn(f"{what}. Commissioning again within {narrowed[0]:.4g}..{narrowed[1]:.4g} V, the "
                           f"controller's range from now on ({100 * DEAD_MARGIN:g} % of the range beyond where it "
                           "moves, and the rest command)", DeadRangeWarning, stacklevel=2)
