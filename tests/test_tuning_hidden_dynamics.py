@@ -120,6 +120,16 @@ class KrasnoselskiiPokrovskii:
         return float(self.mu @ (self.s + 1) / 2)
 
 
+def _verified(stage):
+    """The stage commissioned (clipping warnings aside), its tuning (with feedback) and the checks of its gain."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ph.ClippingWarning)
+        ctl = ph.commission(stage)
+    tu = ctl.tuning
+    assert tu is not None and tu.ki > 0
+    return ctl, tu, tu.verification
+
+
 def _e_max_last(ctl, stage, freq: float, *, learning: bool, cycles: int = 6) -> float:
     a, b = steady_range(stage)
     ref = ph.sinusoid(freq, cycles, a, b, stage.dt)
@@ -172,12 +182,7 @@ def test_feedback_that_rings_along_a_branch_is_halved_until_it_helps():
                   AsymmetricMaxwellSlip(10.0, 77.7, n=14, ratio=0.681), 5e-5, (-10.0, 10.0),
                   kv=((0.0684, 0.0111), (0.0228, 0.00429)), fn_hz=1023.6, zeta=0.028, noise_um=0.178,
                   delay_samples=3, seed=3)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ph.ClippingWarning)
-        ctl = ph.commission(stage)
-    tu = ctl.tuning
-    assert tu is not None and tu.ki > 0
-    checks = tu.verification
+    ctl, tu, checks = _verified(stage)
     # the gain the experiments allowed did worse than the feedforward alone on the branches ...
     assert checks[0]["ratio"] > FEEDBACK_WORSE_RATIO, tu.method
     # ... and the one kept does not, and is what the last check measured
@@ -214,12 +219,7 @@ def test_feedback_that_adds_to_the_peaks_is_halved_too():
     stage = Stage("KP behind 600 Hz at 4 %, 2 kHz, 0..150 V", KrasnoselskiiPokrovskii(150.0, 67.1, n=20, eps=0.0719),
                   5e-4, (0.0, 150.0), tau_amp=1e-4, fn_hz=600.0, zeta=0.0426, noise_um=0.0144, delay_samples=4,
                   seed=4)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ph.ClippingWarning)
-        ctl = ph.commission(stage)
-    tu = ctl.tuning
-    assert tu is not None and tu.ki > 0
-    checks = tu.verification
+    ctl, tu, checks = _verified(stage)
     assert checks[0]["ratio"] <= FEEDBACK_WORSE_RATIO  # the RMS alone would have kept it
     assert checks[0]["e_max_ratio"] > FEEDBACK_WORSE_EMAX_RATIO, tu.method
     assert checks[-1]["e_max_ratio"] <= FEEDBACK_WORSE_EMAX_RATIO and tu.ki < checks[0]["ki"]
