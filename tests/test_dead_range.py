@@ -75,14 +75,15 @@ def _play_record(edge_share: float, noise_share: float, seed: int) -> tuple[np.n
 
 @settings(max_examples=25, deadline=None)
 @given(edge_share=st.floats(0.2, 0.7), noise_share=st.floats(0.0, 0.003), seed=st.integers(0, 2**16))
-def test_a_dead_part_is_found_and_never_reaches_into_where_the_stage_moves(edge_share, noise_share, seed):
+def test_a_dead_part_is_found_to_within_a_bin_of_where_the_stage_moves(edge_share, noise_share, seed):
     u, y, edge = _play_record(edge_share, noise_share, seed)
     dead = dead_range(u, y)
     width = 200.0 / DEAD_BINS
     assert dead.low is not None and dead.high is None
-    # never above the edge (the part kept must hold all the stage's motion); at most a few bins
-    # below it (a bin is read with its neighbours)
-    assert edge - 4 * width <= dead.low <= edge + 1e-9
+    # within a bin above the edge at most (a bin the edge cuts moves by less than the slope limit
+    # over its width, and is counted dead), a few bins below it (read both ways, each bin is read
+    # with its neighbours)
+    assert edge - 4 * width <= dead.low <= edge + width
 
 
 @settings(max_examples=25, deadline=None)
@@ -111,12 +112,12 @@ def test_commission_identifies_where_the_stage_moves():
         warnings.simplefilter("always")
         ctl = ph.commission(stage, tune=False)
     assert any(issubclass(w.category, DeadRangeWarning) for w in caught)
-    # narrowed to a bin (2 % of the range) beyond where it moves, the rest command (0 V) inside
+    # narrowed to where it moves (found a bin into the dead part at most), the rest command (0 V) inside
     assert -60.0 < ctl.limits.low < 0.0 and ctl.limits.high == 200.0
     a, b = steady_range(stage)
     per = int(round(1.0 / stage.dt))
     ff = ctl.track(ph.sinusoid(1.0, 3, a, b, stage.dt), feedback=False, learning=False, period=per)
-    # over the whole range: 6.1 % (module docstring); here 1.1 %
+    # over the whole range: 6.1 % (module docstring); here 1.4 %
     assert ff.e_max_percent < 2.0
 
 
@@ -148,7 +149,7 @@ def test_a_stage_against_its_stop_is_commissioned_below_it():
     """Maxwell-slip elements against a stop at 60 % of their stroke: the top of the range is
     dead, and the slip elements' state goes on moving there where the output does not. Over the
     whole range the feedforward missed by 7.6 / 7.9 / 8.1 % (1 / 3 / 5 Hz) and feedback with
-    learning by 2.6 / 3.0 / 3.8 %; commissioned below the stop, 1.8 / 2.0 / 2.0 % and 0.4 / 0.6 / 0.6 %."""
+    learning by 2.6 / 3.0 / 3.8 %; commissioned below the stop, 0.4 / 0.5 / 0.5 % and 0.2 / 0.3 / 0.3 %."""
     stage = Stage("slip against a stop", _AgainstAStop(AsymmetricMaxwellSlip(100.0, 20.0), 12.0), 1e-4, (0.0, 100.0),
                   tau_amp=1e-4, kv=((0.03, 0.1),), fn_hz=1500.0, zeta=0.05, noise_um=0.003, delay_samples=2, seed=1)
     with warnings.catch_warnings(record=True) as caught:
@@ -159,7 +160,66 @@ def test_a_stage_against_its_stop_is_commissioned_below_it():
     a, b = steady_range(stage)
     per = int(round(1.0 / stage.dt))
     ff = ctl.track(ph.sinusoid(1.0, 3, a, b, stage.dt), feedback=False, learning=False, period=per)
-    assert ff.e_max_percent < 3.0
+    assert ff.e_max_percent < 1.0
     ref = ph.sinusoid(1.0, 6, a, b, stage.dt)
     out = ctl.track(ref, period=per)
-    assert 100.0 * np.abs(out.error[4 * per:]).max() / np.ptp(ref) < 1.0
+    assert 100.0 * np.abs(out.error[4 * per:]).max() / np.ptp(ref) < 0.6
+
+
+def _clipped_pi(top_share: float, noise_share: float, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Commissioning's excitation over 0..100 V at 2 kHz through P-I elements whose output cannot
+    pass ``top_share`` of its span (a stop), with white noise; and the highest input at which a
+    rising step still moves the noise-free output."""
+    u = commissioning_excitation(5e-4, (0.0, 100.0))
+    p = ph.PrandtlIshlinskii(np.array([0.0, 5.0, 15.0, 30.0]), np.array([0.05, 0.03, 0.02, 0.01])).simulate(u)
+    top = float(p.min() + top_share * np.ptp(p))
+    clean = np.minimum(p, top)
+    moving_up = (np.diff(u) > 0) & (np.diff(clean) > 1e-12)
+    y = clean + noise_share * float(np.ptp(clean)) * np.random.default_rng(seed).standard_normal(u.size)
+    return u, y, float(u[1:][moving_up].max())
+
+
+@settings(max_examples=25, deadline=None)
+@given(top_share=st.floats(0.5, 0.8), noise_share=st.floats(0.0, 0.003), seed=st.integers(0, 2**16))
+def test_a_stop_is_found_where_the_rising_branch_ends(top_share, noise_share, seed):
+    u, y, last_rise = _clipped_pi(top_share, noise_share, seed)
+    dead = dead_range(u, y)
+    width = 100.0 / DEAD_BINS
+    # below the last input at which the output still rises only by part of a bin that moves less
+    # than the slope limit; above it by the bin it lies in and, with noise, by the bins whose few
+    # rising steps cannot show the slope below the limit
+    assert dead.high is not None and last_rise - width <= dead.high <= last_rise + 3 * width, (dead, last_rise)
+
+
+def test_p_i_against_a_stop_is_commissioned_up_to_where_it_stops():
+    """P-I elements against a stop at 80 % of their stroke. Commissioned over the whole range the
+    feedforward missed by 14 % at 1 Hz; up to where either branch moves (82 V, the falling one
+    leaving the stop late) by 4.6 %: there the elements' state rises on under the stop, and the
+    model learns a branch that waits after each reversal. Up to where the rising branch stops
+    (80 V): 0.7 %."""
+    stage = Stage("P-I against a stop", _AgainstAStop(_Plays(100.0, 20.0), 16.0), 1e-4, (0.0, 100.0), tau_amp=1e-4,
+                  kv=((0.03, 0.1),), fn_hz=1500.0, zeta=0.05, noise_um=0.003, delay_samples=2, seed=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ctl = ph.commission(stage, tune=False)
+    assert 75.0 < ctl.limits.high <= 81.0
+    a, b = steady_range(stage)
+    ff = ctl.track(ph.sinusoid(1.0, 3, a, b, stage.dt), feedback=False, learning=False, period=int(round(1.0 / stage.dt)))
+    assert ff.e_max_percent < 1.5
+
+
+class _Plays:
+    """Ten play operators, thresholds up to half the range, weights falling to a fifth."""
+
+    def __init__(self, v_max: float, stroke_um: float):
+        self.r = np.linspace(0.0, 0.5 * v_max, 10)
+        w = np.linspace(1.0, 0.2, 10)
+        self.w = w / w.sum() * 1.3 * stroke_um / v_max
+        self.reset()
+
+    def reset(self) -> None:
+        self.z = np.zeros(self.r.size)
+
+    def step(self, v: float) -> float:
+        self.z = np.minimum(np.maximum(self.z, v - self.r), v + self.r)
+        return float(self.w @ self.z)

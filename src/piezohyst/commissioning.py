@@ -1013,24 +1013,24 @@ def _commission_where_monotone(plant: Any, call: dict[str, Any], mono: MonotoneR
 
 
 #: How far beyond the edge of a dead part of the range (:func:`~piezohyst.identify.monotone.dead_range`)
-#: the narrowed range reaches (fraction of the range): one bin of the detection, against an edge
-#: found a bin inside where the stage moves. No more: beyond a stop, the stage's hidden state moves
-#: on where its output does not (a Maxwell-slip stage against a stop at 60 % of its stroke,
+#: the narrowed range reaches (fraction of the range): none. The edge is found where no bin
+#: beyond it moves (a bin into the dead part at most), and beyond a stop the stage's hidden state
+#: moves on where its output does not (a Maxwell-slip stage against a stop at 60 % of its stroke,
 #: feedforward at 1 / 3 / 5 Hz with margins of 0, 2, 5 and 10 % of the range: 2.0 / 2.0 / 1.8,
-#: 1.8 / 2.0 / 2.0, 3.1 / 3.2 / 3.1 and 4.2 / 4.4 / 4.4 % e_max; a unipolar element on -200..200 V:
-#: 1.4 / 1.0 / 1.0, 1.1 / 0.7 / 0.7, 1.7 / 1.1 / 1.1 and 1.8 / 1.4 / 1.5 %).
-DEAD_MARGIN = 1.0 / DEAD_BINS
+#: 1.8 / 2.0 / 2.0, 3.1 / 3.2 / 3.1 and 4.2 / 4.4 / 4.4 % e_max; P-I elements against one at 80 %
+#: of theirs, the range ending at 78, 80, 82 and 84 V: 0.5, 0.7, 2.6 and 4.6 % at 1 Hz).
+DEAD_MARGIN = 0.0
 
 
 def _narrowed_to_moving(dead: DeadRange, limits: CommandLimits) -> tuple[float, float] | None:
     """The range commissioning moves to where ``dead`` was found: the part where the stage moves,
     :data:`DEAD_MARGIN` beyond it, and the rest command always inside; None when that is not
-    narrower by at least the margin (the rest command at a dead end keeps it)."""
+    narrower by a bin of the detection at least (the rest command at a dead end keeps it)."""
     lo, hi = limits.low, limits.high
     margin = DEAD_MARGIN * (hi - lo)
     new_lo = lo if dead.low is None else max(lo, min(dead.low - margin, limits.rest))
     new_hi = hi if dead.high is None else min(hi, max(dead.high + margin, limits.rest))
-    if (new_lo - lo) + (hi - new_hi) < margin:
+    if (new_lo - lo) + (hi - new_hi) < (hi - lo) / DEAD_BINS:
         return None
     return new_lo, new_hi
 
@@ -1164,8 +1164,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
             # feedforward 6.1 / 5.0 / 4.5 % e_max at 1 / 3 / 5 Hz, 1.1 / 0.7 / 0.7 % commissioned
             # again within -24..200 V)
             warnings.warn(f"{what}. Commissioning again within {narrowed[0]:.4g}..{narrowed[1]:.4g} V, the "
-                          f"controller's range from now on ({100 * DEAD_MARGIN:g} % of the range beyond where it "
-                          "moves, and the rest command)", DeadRangeWarning, stacklevel=2)
+                          "controller's range from now on (where the stage moves, and the rest command)",
+                          DeadRangeWarning, stacklevel=2)
             return _commission_within(plant, call, *narrowed)
         if narrowed is not None and excitation is not None:
             warnings.warn(f"{what}: the excitation given spends that part for nothing; "

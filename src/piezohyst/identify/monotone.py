@@ -50,7 +50,7 @@ class DeadRangeWarning(UserWarning):
 
 #: The input's range is read in this many bins for the slope of the output on it (:func:`dead_range`).
 DEAD_BINS = 50
-#: ... each read together with this many neighbours on each side.
+#: ... each read together with this many neighbours on each side (over the steps both ways).
 DEAD_NEIGHBOURS = 1
 #: A bin is dead when the output's slope on the input there is, with three standard errors to
 #: spare, below this share of the record's mean slope (output span over input range) ...
@@ -133,13 +133,16 @@ def dead_range(u: FloatArray, y: FloatArray) -> DeadRange:
 
     The range is cut into :data:`DEAD_BINS` bins; in each, the output's slope on the input is the
     least-squares ratio of the sample-to-sample changes, ``sum dy du / sum du^2`` over the steps
-    that begin and end in the bin or its :data:`DEAD_NEIGHBOURS` neighbours each side, with its
-    standard error. A drift of the output with time (creep
-    relaxing after the input entered a dead zone, ringing, noise) moves ``y`` the same way whether
-    ``u`` rises or falls there and so adds nothing to that sum, where a level of ``y`` over the
-    bin would say nothing of the input's effect. A bin is dead when its slope is below
-    :data:`DEAD_SLOPE` of the record's mean slope with three standard errors to spare, and an end
-    is dead when the dead bins from it reach :data:`MIN_DEAD_SHARE` of the range. The output is
+    that begin and end in the bin, with its standard error. Over the steps both ways (each bin read
+    with its :data:`DEAD_NEIGHBOURS` neighbours each side), a drift of the output with time (creep relaxing
+    after the input entered a dead zone, ringing, noise) moves ``y`` the same way whether ``u``
+    rises or falls and so adds nothing to that sum, where a level of ``y`` over the bin would say
+    nothing of the input's effect. Over the steps of the branch that reaches an end alone
+    (falling at the bottom, rising at the top), a stop shows where the other branch, leaving it
+    late, still moves, and each bin is read alone; creep there, still going the way the input
+    went, only makes the part look alive. A bin is dead when a slope is below :data:`DEAD_SLOPE` of the record's mean slope with
+    three standard errors to spare, and an end is dead as far as the dead bins from it reach by
+    either reading, if that is :data:`MIN_DEAD_SHARE` of the range. The output is
     read through a running median of :data:`GLITCH_WIDTH` samples (a glitch is not a slope).
     Records longer than 200,000 samples are read every k-th sample.
     """
@@ -161,28 +164,51 @@ def dead_range(u: FloatArray, y: FloatArray) -> DeadRange:
     du, dy = np.diff(u), np.diff(y)
     b0 = np.minimum((u[:-1] - lo) // width, DEAD_BINS - 1).astype(np.int64)
     b1 = np.minimum((u[1:] - lo) // width, DEAD_BINS - 1).astype(np.int64)
-    keep = (b0 == b1) & (du != 0.0)
-    bins, du, dy = b0[keep], du[keep], dy[keep]
-    sums = [np.bincount(bins, w, DEAD_BINS).astype(np.float64) for w in (du * du, du * dy, dy * dy, np.ones(du.size))]
-    # each bin read with its neighbours: ringing after the input enters a dead part moves the
-    # output one way over one bin's passage and back over the next (measured: slopes of -0.36 to
-    # +0.17 of the mean, alternating bin by bin, on a dead part behind a 550 Hz resonance)
-    window = np.ones(2 * DEAD_NEIGHBOURS + 1)
-    suu, suy, syy, count = (np.convolve(x, window, mode="same") for x in sums)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        slope = suy / suu
-        resid = np.maximum(syy - slope * suy, 0.0) / np.maximum(count - 1, 1)  # the steps' scatter about it
-        stderr = np.sqrt(resid / suu)
-    dead = (count >= 3) & (slope + 3.0 * stderr < DEAD_SLOPE * span / (hi - lo))
+    same = b0 == b1
+    limit = DEAD_SLOPE * span / (hi - lo)
+    # the steps both ways (a drift with time cancels), and the steps of the branch that reaches
+    # each end alone, falling at the bottom and rising at the top: it tells whether going further
+    # does anything (on a Preisach-type stage a reversal anywhere in such a part gives the same
+    # branch back; against a stop the rising branch is flat where the falling one, leaving the
+    # stop late, is not); an end is dead as far as either says
+    dead_both = _dead_bins(b0[same & (du != 0.0)], du[same & (du != 0.0)], dy[same & (du != 0.0)], limit,
+                           DEAD_NEIGHBOURS)
+    # one way, each bin alone: a bin read as alive only stops the dead part short, and the edge of
+    # a stop is found to the bin (read with its neighbours, a bin beyond it: on P-I elements against
+    # a stop at 80 % of the stroke, commissioned up to 80, 82 and 84 V, the feedforward missed by
+    # 0.7, 2.6 and 4.6 % e_max at 1 Hz)
+    dead_down, dead_up = (_dead_bins(b0[keep], du[keep], dy[keep], limit, 0)
+                          for keep in (same & (du < 0.0), same & (du > 0.0)))
+
+    def run_from_start(dead: NDArray[np.bool_]) -> int:
+        return int(np.argmin(dead)) if not dead.all() else DEAD_BINS
+
+    n_lo = max(run_from_start(dead_both), run_from_start(dead_down))
+    n_hi = max(run_from_start(dead_both[::-1]), run_from_start(dead_up[::-1]))
     need = int(math.ceil(MIN_DEAD_SHARE * DEAD_BINS - 1e-9))
-    n_lo = int(np.argmin(dead)) if not dead.all() else DEAD_BINS
-    n_hi = int(np.argmin(dead[::-1])) if not dead.all() else DEAD_BINS
     if n_lo + n_hi >= DEAD_BINS:
         return none  # the output follows the input nowhere: nothing to narrow to
     low = lo + n_lo * width if n_lo >= need else None
     high = hi - n_hi * width if n_hi >= need else None
     share = ((n_lo if low is not None else 0) + (n_hi if high is not None else 0)) / DEAD_BINS
     return DeadRange(low, high, share)
+
+
+def _dead_bins(bins: NDArray[np.int64], du: FloatArray, dy: FloatArray, limit: float,
+               neighbours: int) -> NDArray[np.bool_]:
+    """Per bin of :func:`dead_range`: the slope ``sum dy du / sum du^2`` over the steps in it and its
+    ``neighbours`` each side is below ``limit`` with three standard errors to spare."""
+    sums = [np.bincount(bins, w, DEAD_BINS).astype(np.float64) for w in (du * du, du * dy, dy * dy, np.ones(du.size))]
+    # each bin read with its neighbours: ringing after the input enters a dead part moves the
+    # output one way over one bin's passage and back over the next (measured: slopes of -0.36 to
+    # +0.17 of the mean, alternating bin by bin, on a dead part behind a 550 Hz resonance)
+    window = np.ones(2 * neighbours + 1)
+    suu, suy, syy, count = (np.convolve(x, window, mode="same") for x in sums)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = suy / suu
+        resid = np.maximum(syy - slope * suy, 0.0) / np.maximum(count - 1, 1)  # the steps' scatter about it
+        stderr = np.sqrt(resid / suu)
+    return np.asarray((count >= 3) & (slope + 3.0 * stderr < limit))
 
 
 def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
