@@ -133,17 +133,20 @@ def dead_range(u: FloatArray, y: FloatArray) -> DeadRange:
 
     The range is cut into :data:`DEAD_BINS` bins; in each, the output's slope on the input is the
     least-squares ratio of the sample-to-sample changes, ``sum dy du / sum du^2`` over the steps
-    that begin and end in the bin, with its standard error. Over the steps both ways (each bin read
-    with its :data:`DEAD_NEIGHBOURS` neighbours each side), a drift of the output with time (creep relaxing
-    after the input entered a dead zone, ringing, noise) moves ``y`` the same way whether ``u``
-    rises or falls and so adds nothing to that sum, where a level of ``y`` over the bin would say
-    nothing of the input's effect. Over the steps of the branch that reaches an end alone
-    (falling at the bottom, rising at the top), a stop shows where the other branch, leaving it
-    late, still moves, and each bin is read alone; creep there, still going the way the input
-    went, only makes the part look alive. A bin is dead when a slope is below :data:`DEAD_SLOPE` of the record's mean slope with
-    three standard errors to spare, and an end is dead as far as the dead bins from it reach by
-    either reading, if that is :data:`MIN_DEAD_SHARE` of the range. The output is
-    read through a running median of :data:`GLITCH_WIDTH` samples (a glitch is not a slope).
+    that begin and end in the bin, with its standard error. It is read two ways:
+
+    * over the steps both ways, each bin with its :data:`DEAD_NEIGHBOURS` neighbours each side: a
+      drift of the output with time (creep relaxing after the input entered a dead zone, ringing,
+      noise) moves ``y`` the same way whether ``u`` rises or falls and so adds nothing to the
+      sum, where a level of ``y`` over the bin would say nothing of the input's effect;
+    * over the steps of the branch that reaches the end alone (falling at the bottom, rising at
+      the top), each bin alone: a stop shows there although the other branch, leaving it late,
+      still moves; creep, still going the way the input went, only makes the part look alive.
+
+    A bin is dead when its slope is below :data:`DEAD_SLOPE` of the record's mean slope with three
+    standard errors to spare, and an end is dead as far as the dead bins from it reach by either
+    reading, if that is :data:`MIN_DEAD_SHARE` of the range. The output is read through a running
+    median of :data:`GLITCH_WIDTH` samples (a glitch is not a slope).
     Records longer than 200,000 samples are read every k-th sample.
     """
     u = np.asarray(u, dtype=np.float64)
@@ -171,8 +174,8 @@ def dead_range(u: FloatArray, y: FloatArray) -> DeadRange:
     # does anything (on a Preisach-type stage a reversal anywhere in such a part gives the same
     # branch back; against a stop the rising branch is flat where the falling one, leaving the
     # stop late, is not); an end is dead as far as either says
-    dead_both = _dead_bins(b0[same & (du != 0.0)], du[same & (du != 0.0)], dy[same & (du != 0.0)], limit,
-                           DEAD_NEIGHBOURS)
+    both = same & (du != 0.0)
+    dead_both = _dead_bins(b0[both], du[both], dy[both], limit, DEAD_NEIGHBOURS)
     # one way, each bin alone: a bin read as alive only stops the dead part short, and the edge of
     # a stop is found to the bin (read with its neighbours, a bin beyond it: on P-I elements against
     # a stop at 80 % of the stroke, commissioned up to 80, 82 and 84 V, the feedforward missed by
