@@ -1161,8 +1161,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         if narrowed is not None and excitation is None and not getattr(_narrowing, "active", False):
             # the excitation's loops are centred on the range: over a range half dead they miss the
             # loops a tracking run makes where the stage moves (a unipolar element on -200..200 V:
-            # feedforward 6.1 / 5.0 / 4.5 % e_max at 1 / 3 / 5 Hz, 1.4 / 1.1 / 1.0 % commissioned
-            # again within -16..200 V)
+            # feedforward 6.1 / 5.0 / 4.5 % e_max at 1 / 3 / 5 Hz, 1.0 / 0.7 / 0.8 % commissioned
+            # again within -8..200 V)
             warnings.warn(f"{what}. Commissioning again within {narrowed[0]:.4g}..{narrowed[1]:.4g} V, the "
                           "controller's range from now on (where the stage moves, and the rest command)",
                           DeadRangeWarning, stacklevel=2)

@@ -144,8 +144,9 @@ def dead_range(u: FloatArray, y: FloatArray) -> DeadRange:
       still moves; creep, still going the way the input went, only makes the part look alive.
 
     A bin is dead when its slope is below :data:`DEAD_SLOPE` of the record's mean slope with three
-    standard errors to spare, and an end is dead as far as the dead bins from it reach by either
-    reading, if that is :data:`MIN_DEAD_SHARE` of the range. The output is read through a running
+    standard errors to spare, alive when above it so; an end is dead up to its last dead bin before
+    the first alive one (the bins at the very end, where the input turns and moves slowly, often
+    cannot tell), as far as either reading says, if that is :data:`MIN_DEAD_SHARE` of the range. The output is read through a running
     median of :data:`GLITCH_WIDTH` samples (a glitch is not a slope).
     Records longer than 200,000 samples are read every k-th sample.
     """
@@ -183,11 +184,8 @@ def dead_range(u: FloatArray, y: FloatArray) -> DeadRange:
     dead_down, dead_up = (_dead_bins(b0[keep], du[keep], dy[keep], limit, 0)
                           for keep in (same & (du < 0.0), same & (du > 0.0)))
 
-    def run_from_start(dead: NDArray[np.bool_]) -> int:
-        return int(np.argmin(dead)) if not dead.all() else DEAD_BINS
-
-    n_lo = max(run_from_start(dead_both), run_from_start(dead_down))
-    n_hi = max(run_from_start(dead_both[::-1]), run_from_start(dead_up[::-1]))
+    n_lo = max(_dead_from_start(*dead_both), _dead_from_start(*dead_down))
+    n_hi = max(_dead_from_start(*(m[::-1] for m in dead_both)), _dead_from_start(*(m[::-1] for m in dead_up)))
     need = int(math.ceil(MIN_DEAD_SHARE * DEAD_BINS - 1e-9))
     if n_lo + n_hi >= DEAD_BINS:
         return none  # the output follows the input nowhere: nothing to narrow to
@@ -198,9 +196,11 @@ def dead_range(u: FloatArray, y: FloatArray) -> DeadRange:
 
 
 def _dead_bins(bins: NDArray[np.int64], du: FloatArray, dy: FloatArray, limit: float,
-               neighbours: int) -> NDArray[np.bool_]:
-    """Per bin of :func:`dead_range`: the slope ``sum dy du / sum du^2`` over the steps in it and its
-    ``neighbours`` each side is below ``limit`` with three standard errors to spare."""
+               neighbours: int) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Per bin of :func:`dead_range`, from the slope ``sum dy du / sum du^2`` over the steps in it
+    and its ``neighbours`` each side: whether it is below ``limit`` with three standard errors to
+    spare (dead), and whether it is above it so (alive). A bin with too few steps to tell is
+    neither (at the ends of the range the input turns, and moves slowly)."""
     sums = [np.bincount(bins, w, DEAD_BINS).astype(np.float64) for w in (du * du, du * dy, dy * dy, np.ones(du.size))]
     # each bin read with its neighbours: ringing after the input enters a dead part moves the
     # output one way over one bin's passage and back over the next (measured: slopes of -0.36 to
@@ -211,7 +211,17 @@ def _dead_bins(bins: NDArray[np.int64], du: FloatArray, dy: FloatArray, limit: f
         slope = suy / suu
         resid = np.maximum(syy - slope * suy, 0.0) / np.maximum(count - 1, 1)  # the steps' scatter about it
         stderr = np.sqrt(resid / suu)
-    return np.asarray((count >= 3) & (slope + 3.0 * stderr < limit))
+    enough = count >= 3
+    return (np.asarray(enough & (slope + 3.0 * stderr < limit)),
+            np.asarray(enough & (slope - 3.0 * stderr > limit)))
+
+
+def _dead_from_start(dead: NDArray[np.bool_], alive: NDArray[np.bool_]) -> int:
+    """How many bins from the start are dead: up to the last dead one before the first alive one
+    (bins that cannot tell, between dead ones or before them, count with them)."""
+    first_alive = int(np.argmax(alive)) if alive.any() else dead.size
+    dead_before = np.flatnonzero(dead[:first_alive])
+    return int(dead_before[-1]) + 1 if dead_before.size else 0
 
 
 def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
