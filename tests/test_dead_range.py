@@ -107,6 +107,25 @@ def test_fit_model_names_the_dead_part():
     assert any("does not follow the input" in w for w in fit.warnings), fit.warnings
 
 
+def test_identify_names_the_dead_part_with_the_papers_fit_too(tmp_path, capsys):
+    """`piezohyst identify --model pi` (the paper's least-squares fit, not the model selection)
+    names it as well: before, its report said nothing of a range half dead."""
+    import json
+
+    from piezohyst.cli import main
+
+    stage = _half_dead_stage()
+    u, y = _record(stage)
+    path = tmp_path / "half-dead.csv"
+    np.savetxt(path, np.column_stack([np.arange(u.size) * stage.dt, u, y]), delimiter=",", header="t,u,y",
+               comments="")
+    assert main(["identify", str(path), "--model", "pi", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert any("does not follow the input in -200.." in w for w in out["warnings"]), out["warnings"]
+    assert main(["identify", str(path), "--model", "pi"]) == 0
+    assert "warning: the output does not follow the input" in capsys.readouterr().out
+
+
 def test_commission_identifies_where_the_stage_moves():
     stage = _half_dead_stage()
     with warnings.catch_warnings(record=True) as caught:

@@ -114,6 +114,11 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
     # a check of the API refusing these data names the file (the flags were checked above)
     fit = guarded(fit_it, args.data)
+    if method in ("lsq", "pso"):  # the paper's fits say nothing of the record's range; fit_model does
+        from ..identify.monotone import range_warnings
+
+        d = fit.delay
+        fit.warnings = range_warnings(train.u[: len(train) - d], train.y[d:]) + list(fit.warnings)
     if not np.isfinite(fit.rmse):
         raise UsageError(f"{args.data}: the fit's RMSE is {fit.rmse} (not finite): the model cannot follow these "
                          f"data; check their units and scale")

@@ -224,6 +224,24 @@ def _dead_from_start(dead: NDArray[np.bool_], alive: NDArray[np.bool_]) -> int:
     return int(dead_before[-1]) + 1 if dead_before.size else 0
 
 
+def range_warnings(u: FloatArray, y: FloatArray) -> list[str]:
+    """What a record shows of its range that a model fitted over all of it cannot use: an end where
+    the stage is not monotone (:func:`monotone_range`) and one where it does not move
+    (:func:`dead_range`), one sentence each (``u`` and ``y`` paired, a delay taken out)."""
+    out = []
+    lo, hi = float(np.min(u)), float(np.max(u))
+    mono = monotone_range(u, y)
+    if not mono.monotone:
+        out.append(f"{mono.describe(lo, hi)}: a model fitted over the whole range is fitted to what no compensator "
+                   "can use; identify within that range")
+    dead = dead_range(u, y)
+    if dead.found:
+        out.append(f"{dead.describe(lo, hi)}: what the record spends there identifies nothing, and its loops inside "
+                   "the range may miss those the stage makes where it moves; identify within the range where it "
+                   "moves (commission() narrows to it)")
+    return out
+
+
 def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
     """False when the output falls as the input rises (negative correlation, e.g. a sensor mounted
     the other way round): every model kind here has a rising loop."""
@@ -306,4 +324,4 @@ def monotone_range(u: FloatArray, y: FloatArray) -> MonotoneRange:
     return MonotoneRange(ends[0][0], ends[1][0], (ends[0][1], ends[1][1]), (ends[0][2], ends[1][2]))
 
 
-__all__ = ["DeadRange", "DeadRangeWarning", "dead_range", "MonotoneRange", "NotMonotoneWarning", "monotone_range", "rises_with_input", "turn_indices", "MIN_TRAVEL", "MIN_FALL"]
+__all__ = ["DeadRange", "DeadRangeWarning", "dead_range", "range_warnings", "MonotoneRange", "NotMonotoneWarning", "monotone_range", "rises_with_input", "turn_indices", "MIN_TRAVEL", "MIN_FALL"]

@@ -73,7 +73,7 @@ from ..models.duhem import MAX_RANGE_SPANS, reaches_beyond_knots
 from ..models.play import play_operator
 from .glitches import SPAN_SHARE as GLITCH_SPAN_SHARE
 from .glitches import bridge_glitches, find_glitches
-from .monotone import dead_range, monotone_range, rises_with_input, turn_indices
+from .monotone import range_warnings, rises_with_input, turn_indices
 from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals, unpack_data
 
@@ -1078,15 +1078,7 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
             f"record")
         out.append(by_rate["warning"])
     fit.info["residual_by_rate"] = by_rate
-    mono = monotone_range(uu, y[d:] if d else y)
-    if not mono.monotone:
-        out.append(f"{mono.describe(float(np.min(uu)), float(np.max(uu)))}: a model fitted over the whole range is "
-                   "fitted to what no compensator can use; identify within that range")
-    dead = dead_range(uu, y[d:] if d else y)
-    if dead.found:
-        out.append(f"{dead.describe(float(np.min(uu)), float(np.max(uu)))}: what the record spends there identifies "
-                   "nothing, and its loops inside the range may miss those the stage makes where it moves; identify "
-                   "within the range where it moves (commission() narrows to it)")
+    out += range_warnings(uu, y[d:] if d else y)
     turns, lo, hi, band = _input_reversals(uu)
     if not turns:
         out.append(f"the input never reverses (by more than {100 * END_BAND:g} % of its range): a record that only "
