@@ -1012,24 +1012,20 @@ def _commission_where_monotone(plant: Any, call: dict[str, Any], mono: MonotoneR
     return _commission_within(plant, call, new_lo, new_hi)
 
 
-#: How far beyond the edge of a dead part of the range (:func:`~piezohyst.identify.monotone.dead_range`)
-#: the narrowed range reaches (fraction of the range): none. The edge is found where no bin
-#: beyond it moves (a bin into the dead part at most), and beyond a stop the stage's hidden state
-#: moves on where its output does not (a Maxwell-slip stage against a stop at 60 % of its stroke,
-#: feedforward at 1 / 3 / 5 Hz with margins of 0, 2, 5 and 10 % of the range: 2.0 / 2.0 / 1.8,
-#: 1.8 / 2.0 / 2.0, 3.1 / 3.2 / 3.1 and 4.2 / 4.4 / 4.4 % e_max; P-I elements against one at 80 %
-#: of theirs, the range ending at 78, 80, 82 and 84 V: 0.5, 0.7, 2.6 and 4.6 % at 1 Hz).
-DEAD_MARGIN = 0.0
-
-
 def _narrowed_to_moving(dead: DeadRange, limits: CommandLimits) -> tuple[float, float] | None:
-    """The range commissioning moves to where ``dead`` was found: the part where the stage moves,
-    :data:`DEAD_MARGIN` beyond it, and the rest command always inside; None when that is not
-    narrower by a bin of the detection at least (the rest command at a dead end keeps it)."""
+    """The range commissioning moves to where ``dead`` was found: up to its edge (where no bin
+    beyond moves: a bin into the dead part at most), the rest command always inside; None when
+    that is not narrower by a bin of the detection at least (the rest command at a dead end keeps
+    it).
+
+    No margin beyond the edge: beyond a stop the stage's hidden state moves on where its output
+    does not (a Maxwell-slip stage against a stop at 60 % of its stroke, feedforward at
+    1 / 3 / 5 Hz with margins of 0, 2, 5 and 10 % of the range: 2.0 / 2.0 / 1.8, 1.8 / 2.0 / 2.0,
+    3.1 / 3.2 / 3.1 and 4.2 / 4.4 / 4.4 % e_max; P-I elements against one at 80 % of theirs, the
+    range ending at 78, 80, 82 and 84 V: 0.5, 0.7, 2.6 and 4.6 % at 1 Hz)."""
     lo, hi = limits.low, limits.high
-    margin = DEAD_MARGIN * (hi - lo)
-    new_lo = lo if dead.low is None else max(lo, min(dead.low - margin, limits.rest))
-    new_hi = hi if dead.high is None else min(hi, max(dead.high + margin, limits.rest))
+    new_lo = lo if dead.low is None else max(lo, min(dead.low, limits.rest))
+    new_hi = hi if dead.high is None else min(hi, max(dead.high, limits.rest))
     if (new_lo - lo) + (hi - new_hi) < (hi - lo) / DEAD_BINS:
         return None
     return new_lo, new_hi
