@@ -22,7 +22,13 @@ were set once, before the fix, as a plausible stage of each kind):
   gain on a tracking run and halves it while the feedback does worse than no feedback;
 * ramp hysterons (Krasnosel'skii-Pokrovskii, a census stage of structures outside the zoo) behind
   a 600 Hz resonance: there the feedback left the RMS error as it was and added to the peaks, so
-  the check reads the e_max too.
+  the check reads the e_max too;
+* a Dahl loop (a census of structures outside the zoo), whose branches are steepest just after a
+  reversal and saturate along the way (concave: the opposite of a play-type loop). A probe's
+  removal reverses the stage, which then answers 4.4x more than the probe's effect at the mean
+  slope: the bound on the trial's error allowed 4x, so every trial was stopped and the stage got
+  no feedback at all (ki = 0). The bound now allows the steepest answer the model gives at the
+  hold, either way.
 """
 
 from __future__ import annotations
@@ -118,6 +124,32 @@ class KrasnoselskiiPokrovskii:
         down = np.clip((v - self.be) / self.eps * 2 - 1, -1, 1)
         self.s = np.minimum(np.maximum(self.s, up), down)
         return float(self.mu @ (self.s + 1) / 2)
+
+
+class Dahl:
+    """Dahl's model with exponent ``a``: ``dz/dv = sigma (1 - z sign(dv) / F)^a``, ``F`` a fraction
+    of the stroke, reached over ``reach`` of the range; plus a linear part for the rest of the
+    stroke. Integrated in sub-steps of at most ``v_max / 2000``."""
+
+    def __init__(self, v_max: float, stroke_um: float, a: float = 0.5, frac: float = 0.3, reach: float = 0.1):
+        self.v_max, self.a = v_max, a
+        self.f = frac * stroke_um
+        self.sigma = self.f / (reach * v_max)
+        self.k = (stroke_um - 2 * self.f) / v_max
+        self.reset()
+
+    def reset(self) -> None:
+        self.v, self.z = 0.0, 0.0
+
+    def step(self, v: float) -> float:
+        dv = v - self.v
+        n = int(abs(dv) / (self.v_max / 2000)) + 1
+        h = dv / n
+        s = 1.0 if h > 0 else -1.0
+        for _ in range(n):
+            self.z += self.sigma * h * max(0.0, 1.0 - self.z * s / self.f) ** self.a
+        self.v = v
+        return self.k * v + self.z
 
 
 def _verified(stage):
@@ -226,3 +258,23 @@ def test_feedback_that_adds_to_the_peaks_is_halved_too():
     for freq in (3.0, 5.0):
         # 1.42 / 1.23 % with the gain it had; 1.00 / 1.08 % now
         assert _e_max_last(ctl, stage, freq, learning=True, cycles=8) < 1.15, (freq, tu.method)
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::piezohyst.ClippingWarning")
+def test_a_loop_steepest_after_reversal_gets_feedback():
+    """A census stage of Dahl's model (not tuned on): ki = 0 before, every trial stopped when the
+    probe's removal moved the error 4.4 probes' worth; the feedback it gets now helps. (Its loop
+    drifts down over the first cycles, so the bottom of the steady range is just out of reach at
+    0 V: the runs clip there, the same with and without feedback.)"""
+    stage = Stage("Dahl, exponent 0.5, 10 kHz, 0..100 V", Dahl(100.0, 20.0), 1e-4, (0.0, 100.0), tau_amp=2e-4,
+                  kv=((0.05, 0.01),), fn_hz=2000.0, zeta=0.05, noise_um=0.004, delay_samples=1)
+    ctl, tu, checks = _verified(stage)
+    assert not tu.experiments[0]["aborted"], tu.method
+    assert checks[-1]["ratio"] <= FEEDBACK_WORSE_RATIO, tu.method
+    a, b = steady_range(stage)
+    for freq in (1.0, 5.0):
+        period = int(round(1.0 / (freq * stage.dt)))
+        ff = ctl.track(ph.sinusoid(freq, 3, a, b, stage.dt), feedback=False, learning=False,
+                       period=period).e_max_percent
+        assert _e_max_last(ctl, stage, freq, learning=False) < ff, (freq, ff, tu.method)

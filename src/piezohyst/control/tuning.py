@@ -464,8 +464,11 @@ def tune_integral_safely(
        probe) or that moves further than the probe can explain (aborted at once), and never goes
        past ``max_factor * ki_model`` or the model's ultimate gain divided by ``back_off``, both times the reversal ratio over the large-signal
        slope ratio (step 3: what the probes' loop at the flat slope after a reversal must show for
-       the tracking loop on the steep branches). A trial that starts with the hold further off the
-       level than :data:`SETTLED_PROBES` times the probe's effect (the model off at that level,
+       the tracking loop on the steep branches). A probe "explains" an error up to four times its
+       effect at the steepest slope the model gives at the hold, either way (a loop that
+       saturates after each reversal answers a reversal more steeply than on average). A trial
+       that starts with the hold further off the level than :data:`SETTLED_PROBES` times the
+       probe's effect at the mean slope (the model off at that level,
        the stage still creeping or drifting) first lets the feedback take that error out, probe
        off, within the same bounds widened by that error (and the command that cancels it, at
        the slope after a reversal: cancelling it may reverse the stage's motion); the
@@ -574,7 +577,16 @@ def tune_integral_safely(
     ripple0 = math.sqrt(2.0) * noise  # the error's sample-to-sample RMS with the feedforward alone
     volts_per_um_reversed = max(volts_per_um, 1.0 / chord) if chord > 0 else volts_per_um
     y_probe = probe / volts_per_um  # µm the probe moves the stage, roughly
-    tol_e, tol_fb = 4 * y_probe + 10 * noise, 4 * probe
+    # ... and at most: the probes reverse the stage and move it on, and a loop that saturates
+    # after each reversal (concave branches: Dahl- or Bouc-Wen-like) answers a reversal several
+    # times more steeply than its mean slope (a Dahl stage: 0.93 um/V after a reversal against
+    # 0.21 on average, so every probe's removal moved the error 4.4 probes' worth and every
+    # trial was aborted: no feedback at all). The bound on the error allows the steepest of the
+    # model's answers at the hold, either way.
+    onward = reversal_chord_slope(model, dt, u_level=u_level, u_range=(lim.low, lim.high), step=probe,
+                                  approach=-toward)
+    y_probe_most = probe * max(1.0 / volts_per_um, chord, onward)
+    tol_e, tol_fb = 4 * y_probe_most + 10 * noise, 4 * probe
     pid = PID(0.0, opt.start_fraction * ki_model, 0.0, dt)
     trials: list[tuple[float, float]] = []
     experiments: list[dict[str, Any]] = []
