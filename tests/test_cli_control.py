@@ -40,6 +40,39 @@ def test_compensate_refuses_out_of_range_command(tmp_path, pi_model_file, capsys
     assert json.loads(capsys.readouterr().out)["clipped_samples"] == 1
 
 
+def test_compensate_and_export_drive_the_range_the_model_was_identified_on(tmp_path, capsys):
+    """A stage identified on -100..100 V (a bipolar amplifier): the command table and the exported
+    compensator default to that range, not to 0..100 V (which refused every command below 0 V);
+    --u-min / --u-max still override each end, and a model file without a record says nothing, so
+    0..100 V stays the default there (as for a record within it: the test below)."""
+    u = ph.sinusoid(1.0, 3, -100.0, 100.0, 1e-3)
+    model = ph.PrandtlIshlinskii(ph.equal_thresholds(10, 100.0), np.full(10, 0.01))
+    fit = ph.fit_pi(u, model.simulate(u), n=10)
+    path = ph.save_model(fit.model, tmp_path / "bipolar.json", fit=fit)
+    ref = ph.sinusoid(1.0, 1, -0.5, 0.5, 1e-3)
+    (tmp_path / "ref.csv").write_text("t,x_d\n" + "\n".join(f"{i * 1e-3},{v}" for i, v in enumerate(ref)))
+    base = ["compensate", "--model", str(path), "--reference", str(tmp_path / "ref.csv"), "--json"]
+    assert main(base + ["-o", str(tmp_path / "a.csv")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["amplifier_range_V"] == [-100.0, 100.0] and "identified" in res["amplifier_range_from"]
+    assert res["clipped_samples"] == 0 and res["u_min_V"] < -10.0
+    # an end given on the command line wins, and the error names where each end came from
+    assert main(base + ["-o", str(tmp_path / "b.csv"), "--u-min", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "0..100 V (from --u-min and the default 100 V)" in err, err
+    assert main(base + ["-o", str(tmp_path / "b.csv"), "--u-max", "0"]) == 2
+    assert "-100..0 V (from the model's identified input range and --u-max)" in capsys.readouterr().err
+    assert main(["export", str(path), "--to", "c", "--out", str(tmp_path / "fw"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["amplifier_range_V"] == [-100.0, 100.0]
+    assert "#define" in (tmp_path / "fw" / "compensator.h").read_text()
+    # a bare model file (no record): the default 0..100 V
+    bare = ph.save_model(model, tmp_path / "bare.json")
+    assert main(["compensate", "--model", str(bare), "--reference", str(tmp_path / "ref.csv"), "--json",
+                 "-o", str(tmp_path / "c.csv"), "--clip"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["amplifier_range_V"] == [0.0, 100.0] and "default" in res["amplifier_range_from"]
+
+
 def test_track_with_a_saved_model(tmp_path, capsys):
     rig = ph.VirtualRig(seed=0)
     ds = rig.excite(ph.sinusoid(1.0, 2, 0.0, 100.0, rig.dt))

@@ -393,3 +393,57 @@ def guarded(call: Callable[[], Any], prefix: str) -> Any:
         if is_deliberate(exc) and prefix not in str(exc):
             raise UsageError(f"{prefix}: {one_line(exc)}") from exc
         raise
+
+
+#: The amplifier's range a command table or an exported compensator assumes when neither the
+#: options nor the model file say (V).
+DEFAULT_U_RANGE = (0.0, 100.0)
+
+
+def check_u_options(u_min: float | None, u_max: float | None) -> None:
+    """``--u-min`` / ``--u-max`` as given: finite, and the one below the other (a UsageError)."""
+    for flag, v in (("--u-min", u_min), ("--u-max", u_max)):
+        if v is not None and not math.isfinite(v):
+            raise UsageError(f"--u-min and --u-max must be finite volts, got {flag} {v}")
+    if u_min is not None and u_max is not None and not u_min < u_max:
+        raise UsageError(f"--u-min ({u_min:g}) must be below --u-max ({u_max:g})")
+
+
+def amplifier_range(u_min: float | None, u_max: float | None, doc: dict[str, Any]) -> tuple[float, float, str]:
+    """The amplifier's range for a model file's compensator: ``--u-min`` / ``--u-max`` where
+    given; else 0 / 100 V, widened to the input range the model was identified on where that
+    reaches further (its record's, ``fit.input_range_V``: the amplifier drove the stage there, so a
+    stage identified on -100..100 V or 0..150 V is driven there too; a narrower record keeps
+    0..100 V, and commands beyond what it identified are warned of, not refused).
+    Returns ``(low, high, where each came from)``."""
+    fit = doc.get("fit") or {}
+    given = fit.get("input_range_V") if isinstance(fit, dict) else None
+    known: tuple[float, float] = (math.nan, math.nan)
+    if (isinstance(given, (list, tuple)) and len(given) == 2
+            and all(isinstance(v, (int, float)) and math.isfinite(v) for v in given) and given[0] < given[1]):
+        known = (float(given[0]), float(given[1]))
+    ok = math.isfinite(known[0])
+    said = []
+    if u_min is not None:
+        lo = float(u_min)
+        said.append("--u-min")
+    elif ok and known[0] < DEFAULT_U_RANGE[0]:
+        lo = float(known[0])
+        said.append("the model's identified input range")
+    else:
+        lo = DEFAULT_U_RANGE[0]
+        said.append(f"the default {DEFAULT_U_RANGE[0]:g} V")
+    if u_max is not None:
+        hi = float(u_max)
+        said.append("--u-max")
+    elif ok and known[1] > DEFAULT_U_RANGE[1]:
+        hi = float(known[1])
+        said.append("the model's identified input range")
+    else:
+        hi = DEFAULT_U_RANGE[1]
+        said.append(f"the default {DEFAULT_U_RANGE[1]:g} V")
+    if not lo < hi:
+        raise UsageError(f"the amplifier range {lo:g}..{hi:g} V (low from {said[0]}, high from {said[1]}) is empty; "
+                         "give --u-min and --u-max")
+    where = said[0] if said[0] == said[1] else f"{said[0]} and {said[1]}"
+    return lo, hi, where

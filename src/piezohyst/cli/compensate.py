@@ -16,7 +16,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ._common import UsageError, console, print_json
+from ._common import UsageError, amplifier_range, check_u_options, console, print_json
 
 
 def compensator_for(model: Any, dt: float | None, **limits: Any) -> Any:
@@ -33,11 +33,7 @@ def compensator_for(model: Any, dt: float | None, **limits: Any) -> Any:
 
 def check_options(args: argparse.Namespace) -> None:
     """The numeric options, checked before any file is read (one line each, exit 2)."""
-    lo, hi = args.u_min, args.u_max
-    if not (math.isfinite(lo) and math.isfinite(hi)):
-        raise UsageError(f"--u-min and --u-max must be finite volts, got {lo} and {hi}")
-    if not lo < hi:
-        raise UsageError(f"--u-min ({lo:g}) must be below --u-max ({hi:g})")
+    check_u_options(args.u_min, args.u_max)
     fs = getattr(args, "fs", None)
     if fs is not None and not (math.isfinite(fs) and fs > 0):
         raise UsageError(f"--fs must be a positive, finite sample rate in Hz, got {fs}")
@@ -132,7 +128,6 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     from ..modelio import load_model_document, model_from_dict
 
     check_options(args)
-    lo, hi = args.u_min, args.u_max
     out = check_writable(args.output, args.force)
     try:
         fmt = table_format(out)
@@ -140,6 +135,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     doc = load_model_document(args.model)  # once: the model, and the input range it was identified on
     model = model_from_dict(doc, source=str(args.model))
+    lo, hi, range_from = amplifier_range(args.u_min, args.u_max, doc)
     sha = hashlib.sha256(Path(args.model).read_bytes()).hexdigest()
     t, ref = load_reference(args.reference, args.ref_col, args.t_col, args.fs)
     dt_ref = float((t[-1] - t[0]) / (t.size - 1))
@@ -169,8 +165,9 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         if n_out:
             i = int(np.argmax(outside))
             raise UsageError(
-                f"the command leaves the amplifier range {lo:g}..{hi:g} V at {n_out} of {u.size} samples "
-                f"(first at t = {t[i]:.6g} s: {u[i]:.4g} V); change the reference or pass --clip")
+                f"the command leaves the amplifier range {lo:g}..{hi:g} V (from {range_from}) at {n_out} of "
+                f"{u.size} samples (first at t = {t[i]:.6g} s: {u[i]:.4g} V); change the reference, give the "
+                "amplifier's range (--u-min, --u-max) or pass --clip")
     n_limited = n_out
     extrapolating = _warn_if_extrapolating(doc, u)
     # three comment lines, as before tables had other formats (readers skip 4 lines: these and the header)
@@ -187,6 +184,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
                       "u_min_V": lo, "u_max_V": hi})
     res: dict[str, Any] = {"written": str(out), "format": fmt, "samples": int(u.size), "u_min_V": float(u.min()),
                            "u_max_V": float(u.max()), "clipped_samples": n_limited, "model_kind": model.kind,
+                           "amplifier_range_V": [lo, hi], "amplifier_range_from": range_from,
                            "fs_hz": 1.0 / dt, "resampled": resampled,
                            "largest_step_V": float(np.max(np.abs(np.diff(u)))) if u.size > 1 else 0.0}
     if periodic_info is not None:
@@ -226,8 +224,11 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--periodic", action="store_true",
                    help="the reference is one period of a looping table: write one cycle of the compensator's "
                         "periodic steady state (loops without a step)")
-    p.add_argument("--u-min", type=float, default=0.0, help="amplifier's lowest voltage (default 0)")
-    p.add_argument("--u-max", type=float, default=100.0, help="amplifier's highest voltage (default 100)")
+    p.add_argument("--u-min", type=float, default=None,
+                   help="amplifier's lowest voltage (default 0, or the low end of the input range the model "
+                        "was identified on, as its file says, where that is lower)")
+    p.add_argument("--u-max", type=float, default=None,
+                   help="amplifier's highest voltage (default 100, or the high end of that range where higher)")
     p.add_argument("--clip", action="store_true", help="clip commands to the range instead of refusing")
     p.add_argument("--force", action="store_true", help="overwrite the output file")
     p.add_argument("--json", action="store_true", help="print the summary as JSON only")

@@ -13,20 +13,16 @@ import argparse
 import math
 from pathlib import Path
 
-from ._common import UsageError, console, print_json
+from ._common import UsageError, amplifier_range, check_u_options, console, print_json
 
 
 def cmd_export(args: argparse.Namespace) -> int:
     import hashlib
 
     from .._fileio import producer
-    from ..modelio import load_model
+    from ..modelio import load_model_document, model_from_dict
 
-    lo, hi = args.u_min, args.u_max
-    if not (math.isfinite(lo) and math.isfinite(hi)):
-        raise UsageError(f"--u-min and --u-max must be finite volts, got {lo} and {hi}")
-    if not lo < hi:
-        raise UsageError(f"--u-min ({lo:g}) must be below --u-max ({hi:g})")
+    check_u_options(args.u_min, args.u_max)
     for name in ("max_slew", "fs"):
         v = getattr(args, name)
         if v is not None and not (math.isfinite(v) and v > 0):
@@ -37,7 +33,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.fb_delay < 0:
         raise UsageError(f"--fb-delay must be >= 0 samples, got {args.fb_delay}")
     model_path = Path(args.model)
-    model = load_model(model_path)
+    doc = load_model_document(model_path)
+    model = model_from_dict(doc, source=str(model_path))
+    lo, hi, range_from = amplifier_range(args.u_min, args.u_max, doc)
     if not getattr(model, "is_invertible", False):
         raise UsageError(f"the {model.kind} model is not invertible: it has no compensator to export")
     sha = hashlib.sha256(model_path.read_bytes()).hexdigest()
@@ -66,11 +64,12 @@ def cmd_export(args: argparse.Namespace) -> int:
         res = export_matlab(model, out, u_range=(lo, hi), dt=dt, force=args.force,
                             provenance={"producer": prov, "model_file": model_path.name, "model_sha256": sha})
     res["model_sha256"] = sha
+    res["amplifier_range_V"], res["amplifier_range_from"] = [lo, hi], range_from
     if args.json:
         print_json(res)
     else:
         where = f"{res['header']} and {res['source']}" if args.to == "c" else res["written"]
-        console().print(f"wrote the {model.kind} compensator ({lo:g}..{hi:g} V) to {where}")
+        console().print(f"wrote the {model.kind} compensator ({lo:g}..{hi:g} V, from {range_from}) to {where}")
     return 0
 
 
@@ -82,8 +81,11 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("model", help="model file from 'piezohyst identify'")
     p.add_argument("--to", choices=("c", "matlab"), required=True, help="what to write")
     p.add_argument("--out", required=True, help="directory (c), or .mat file or directory (matlab)")
-    p.add_argument("--u-min", type=float, default=0.0, help="amplifier's lowest voltage; commands are clipped (default 0)")
-    p.add_argument("--u-max", type=float, default=100.0, help="amplifier's highest voltage (default 100)")
+    p.add_argument("--u-min", type=float, default=None,
+                   help="amplifier's lowest voltage; commands are clipped (default 0, or the low end of the input "
+                        "range the model was identified on, as its file says, where that is lower)")
+    p.add_argument("--u-max", type=float, default=None,
+                   help="amplifier's highest voltage (default 100, or the high end of that range where higher)")
     p.add_argument("--max-slew", type=float, default=None, help="largest command change per sample, V (default none)")
     p.add_argument("--fs", type=float, default=None,
                    help="sample rate, Hz, where the model has none of its own: the feedback's integral (c) and "
