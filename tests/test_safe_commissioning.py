@@ -359,3 +359,36 @@ def test_a_hysteretic_answer_that_settles_above_the_probe_is_not_an_overshoot():
     assert ctl.tuning.trials[1][0] > ctl.tuning.trials[0][0], ctl.tuning.trials  # the ladder went up
     # and the gain it climbed to is one the stage takes (the feedforward alone is already near the noise)
     assert fb.e_max_percent <= 1.2 * ff.e_max_percent, (ctl.tuning.ki, ff.e_max_percent, fb.e_max_percent)
+
+
+class _FailsAt(Recorder):
+    """A stage whose ``step`` raises at its ``at``-th call (an operator's Ctrl-C, a sensor timeout)."""
+
+    def __init__(self, plant, at, exc):
+        super().__init__(plant)
+        self.at, self.exc, self.calls = at, exc, 0
+
+    def _step(self, u):
+        self.calls += 1
+        if self.calls == self.at:
+            self.commands.append(float(u))
+            raise self.exc
+        return super()._step(u)
+
+
+@pytest.mark.parametrize("exc", [KeyboardInterrupt(), RuntimeError("sensor timeout")], ids=["interrupt", "fault"])
+def test_a_run_stopped_part_way_ramps_back_to_rest(exc):
+    """Stopped in the middle of the identification run (here at its 4,000th command, high in the
+    range), commissioning used to leave the stage at the last command; like a tracking run or the
+    tuning experiments, it now ramps back to rest within the step limit, and the error that stopped
+    it is the one raised."""
+    stage = _FailsAt(ResonantStage(seed=0, dt=2e-4), 4000, exc)
+    with pytest.raises(type(exc)):
+        ph.commission(stage, tune=False)
+    cmds = np.asarray(stage.commands)
+    lo, hi = stage.u_range
+    in_flight = cmds[1 + 4000 - 1]  # commands[0] is the rest the stage starts at; then one per call
+    assert in_flight > lo + 0.2 * (hi - lo), in_flight              # stopped high in the range ...
+    assert abs(cmds[-1]) < 1e-12, cmds[-5:]                       # ... and back at rest (0 V)
+    assert stage.largest_step() <= 0.02 * (hi - lo) + 1e-9       # smoothly, from where it was
+    assert stage.calls > 4000                                     # the ramp was sent after the fault

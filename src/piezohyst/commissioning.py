@@ -1136,7 +1136,11 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
             sent = guard.guard_table(cmd)
             ds = plant.excite(sent)
         else:
-            y = guard.play(cmd)
+            try:
+                y = guard.play(cmd)
+            except BaseException:  # interrupted or the plant failed part-way: back to rest, as a run ends
+                guard.back_to_rest()
+                raise
             ds = Dataset(np.arange(cmd.size, dtype=np.float64) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "step"})
     else:
         y = guard.play(cmd)

@@ -303,15 +303,23 @@ def bridge_dropouts(y: FloatArray, dt: float, who: str) -> tuple[FloatArray, int
     return interpolate_over(y, bad), count
 
 
-def _recorded(plant: Any, u: FloatArray, mode: str) -> FloatArray:
+def _recorded(plant: Any, u: FloatArray, mode: str, progress: list[int] | None = None) -> FloatArray:
     """The plant's answer to the table ``u`` as it came (dropouts not bridged): one ``play`` of it
-    (``mode`` ``"buffered"``, checked for one value per command) or one ``step`` per command."""
+    (``mode`` ``"buffered"``, checked for one value per command) or one ``step`` per command.
+    ``progress`` (a one-element list), when given, holds the index of the command being sent: where
+    a step that raised (an interrupt, a fault of the plant) left the table."""
     if mode == "buffered":
         y = np.asarray(plant.play(np.ascontiguousarray(u, dtype=np.float64)), dtype=np.float64).ravel()
         if y.size != u.size:
             raise ValueError(f"the plant's play() returned {y.size} values for a table of {u.size} commands")
         return y
-    return np.array([measured(plant.step(v)) for v in u])
+    if progress is None:
+        return np.array([measured(plant.step(v)) for v in u])
+    out = np.empty(u.size)
+    for k, v in enumerate(u):
+        progress[0] = k
+        out[k] = measured(plant.step(v))
+    return out
 
 
 def play_checked(plant: Any, u: FloatArray) -> FloatArray:
@@ -547,12 +555,31 @@ class GuardedPlant:
         """Guard the table ``u`` and play it (either protocol: a Plant steps through it); missing
         measurements bridged (:func:`bridge_dropouts`)."""
         sent = self.guard_table(u)
-        y, missing = bridge_dropouts(_recorded(self.plant, sent, self.mode), self.dt,
-                                     f"the plant ({type(self.plant).__name__})")
+        at = [0]
+        try:
+            raw = _recorded(self.plant, sent, self.mode, at if self.mode == "step" else None)
+        except BaseException:
+            if self.mode == "step" and sent.size:
+                # the table stopped part-way (an interrupt, a fault of the plant): the command in
+                # flight is where the stage is (or one step short of it), not the table's end
+                self.last = float(sent[at[0]])
+            raise
+        y, missing = bridge_dropouts(raw, self.dt, f"the plant ({type(self.plant).__name__})")
         self.bridged += missing
         if y.size:
             self.dropouts.hold(float(y[-1]))
         return y
+
+    def back_to_rest(self) -> None:
+        """After a run stopped part-way (an interrupt, a fault of the plant): ramp the command back
+        to the rest command, as every finished run ends, if the plant still answers (a plant that
+        fails again is left where it is; the error that stopped the run is the one reported)."""
+        if self.mode != "step":
+            return
+        try:
+            self.ramp_to(self.limits.rest)
+        except Exception:  # noqa: BLE001 - best effort after a fault; the first error propagates
+            pass
 
     def ramp_to(self, target: float, *, share: float = 0.5) -> FloatArray:
         """Move the command smoothly from where it is to ``target`` (clipped to the range): a
