@@ -417,33 +417,21 @@ def amplifier_range(u_min: float | None, u_max: float | None, doc: dict[str, Any
     0..100 V, and commands beyond what it identified are warned of, not refused).
     Returns ``(low, high, where each came from)``."""
     fit = doc.get("fit") or {}
-    given = fit.get("input_range_V") if isinstance(fit, dict) else None
-    known: tuple[float, float] = (math.nan, math.nan)
-    if (isinstance(given, (list, tuple)) and len(given) == 2
-            and all(isinstance(v, (int, float)) and math.isfinite(v) for v in given) and given[0] < given[1]):
-        known = (float(given[0]), float(given[1]))
-    ok = math.isfinite(known[0])
-    said = []
-    if u_min is not None:
-        lo = float(u_min)
-        said.append("--u-min")
-    elif ok and known[0] < DEFAULT_U_RANGE[0]:
-        lo = float(known[0])
-        said.append("the model's identified input range")
-    else:
-        lo = DEFAULT_U_RANGE[0]
-        said.append(f"the default {DEFAULT_U_RANGE[0]:g} V")
-    if u_max is not None:
-        hi = float(u_max)
-        said.append("--u-max")
-    elif ok and known[1] > DEFAULT_U_RANGE[1]:
-        hi = float(known[1])
-        said.append("the model's identified input range")
-    else:
-        hi = DEFAULT_U_RANGE[1]
-        said.append(f"the default {DEFAULT_U_RANGE[1]:g} V")
+    rec = fit.get("input_range_V") if isinstance(fit, dict) else None
+    if not (isinstance(rec, (list, tuple)) and len(rec) == 2
+            and all(isinstance(v, (int, float)) and math.isfinite(v) for v in rec) and rec[0] < rec[1]):
+        rec = DEFAULT_U_RANGE  # no record said (a model saved without its fit): the default alone
+    ends = []
+    for given, flag, recorded, default, wider in ((u_min, "--u-min", rec[0], DEFAULT_U_RANGE[0], min),
+                                                  (u_max, "--u-max", rec[1], DEFAULT_U_RANGE[1], max)):
+        if given is not None:
+            ends.append((float(given), flag))
+        elif wider(recorded, default) != default:
+            ends.append((float(recorded), "the model's identified input range"))
+        else:
+            ends.append((default, f"the default {default:g} V"))
+    (lo, lo_from), (hi, hi_from) = ends
     if not lo < hi:
-        raise UsageError(f"the amplifier range {lo:g}..{hi:g} V (low from {said[0]}, high from {said[1]}) is empty; "
+        raise UsageError(f"the amplifier range {lo:g}..{hi:g} V (low from {lo_from}, high from {hi_from}) is empty; "
                          "give --u-min and --u-max")
-    where = said[0] if said[0] == said[1] else f"{said[0]} and {said[1]}"
-    return lo, hi, where
+    return lo, hi, lo_from if lo_from == hi_from else f"{lo_from} and {hi_from}"
