@@ -114,7 +114,11 @@ ablation and in ``tests/test_commission.py``):
    transient, and one more), so a run does not end on one (the zoo's Maxwell-slip stage behind a
    180 Hz resonance, 12 cycles at 3 Hz: its band widened past the resonance three cycles before
    the end, and the last three cycles read 0.15 / 0.71 / 0.66 % against 0.15 / 0.14 / 0.13 %
-   now). A cycle worse
+   then); nor where the tuning's experiments saw an oscillation grow (a low, lightly damped
+   resonance the model lacks, :attr:`CommissionedController.resonance_seen`): there the widened
+   band reached the resonance in mid-run and rang it, two cycles at 5.4-5.6 % e_max in a 5 Hz run
+   of that stage (0.47 % before and after) and 5.3 % on a census stage with the same resonance and
+   logarithmic creep, before the revert. A cycle worse
    than the best by more than 15 % restores the best correction and either narrows the band back
    (if it had been widened since) or halves the gain: what is left then does not repeat (noise, a
    loop that hunts), and a smaller gain averages it over cycles instead of copying it into the
@@ -674,12 +678,20 @@ class CommissionedController:
     def _widest_band(self, per: int | None, dt: float) -> float:
         """How far learning may widen its band (module docstring, step 5): to
         :attr:`MAX_CUTOFF_FRACTION` of the sample rate, unless the loop is flat just after
-        reversals (the band then stays where it starts)."""
+        reversals, or the tuning's experiments saw an oscillation grow (a resonance the model
+        lacks): the band then stays where it starts."""
         if self.ilc_cutoff_hz:
             return self.ilc_cutoff_hz
-        if self.fit.info.get("floor_at_margin"):
+        if self.fit.info.get("floor_at_margin") or self.resonance_seen:
             return self._cutoff(per, dt)
         return self.MAX_CUTOFF_FRACTION / dt
+
+    @property
+    def resonance_seen(self) -> bool:
+        """Whether the tuning's experiments saw an oscillation build under an answer that looked
+        damped (``oscillation_grows``): the mark of a low, lightly damped resonance the model
+        lacks (:func:`~piezohyst.control.tuning.tune_integral_safely`)."""
+        return self.tuning is not None and any(e.get("oscillation_grows") for e in self.tuning.experiments)
 
     def _track_step(self, r: FloatArray, *, feedback: bool, learning: bool, period: int | None,
                     label: str, conditioning: bool = False) -> TrackingResult:
