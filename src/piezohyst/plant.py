@@ -313,11 +313,10 @@ def _recorded(plant: Any, u: FloatArray, mode: str, progress: list[int] | None =
         if y.size != u.size:
             raise ValueError(f"the plant's play() returned {y.size} values for a table of {u.size} commands")
         return y
-    if progress is None:
-        return np.array([measured(plant.step(v)) for v in u])
+    at = progress if progress is not None else [0]
     out = np.empty(u.size)
     for k, v in enumerate(u):
-        progress[0] = k
+        at[0] = k
         out[k] = measured(plant.step(v))
     return out
 
@@ -557,7 +556,7 @@ class GuardedPlant:
         sent = self.guard_table(u)
         at = [0]
         try:
-            raw = _recorded(self.plant, sent, self.mode, at if self.mode == "step" else None)
+            raw = _recorded(self.plant, sent, self.mode, at)
         except BaseException:
             if self.mode == "step" and sent.size:
                 # the table stopped part-way (an interrupt, a fault of the plant): the command in
