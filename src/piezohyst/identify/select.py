@@ -247,6 +247,19 @@ class _Scorer:
             out.append(float(np.sqrt(np.mean(resid**2))))
         return float(np.mean(out)), out
 
+    def sibling(self) -> _Scorer:
+        """A scorer of the same data and settings with caches of its own (for a search in
+        another thread)."""
+        return _Scorer(self.u, self.y, self.dt, self.n_fit, self.validation, self.margin,
+                       warmup=self.warmup, stride=self.stride)
+
+    def adopt(self, other: _Scorer) -> None:
+        """The candidates ``other`` tried that this one has not, appended in ``other``'s order."""
+        for c in other.tried:
+            if c.structure not in self._done:
+                self._done[c.structure] = c
+                self.tried.append(c)
+
     def _prepared(self, key: Structure) -> Prepared:
         """The design of ``key`` (a structure without its delay: every delay fits the same rows).
 
@@ -515,8 +528,8 @@ def fit_model(
         # from the better of the two searches' lags and delay, rather than in each
         once = len(rules) > 1 and "duhem" in statics and len(statics) > 1
         per_rule = [s for s in statics if s != "duhem"] if once else list(statics)
-        ends = [_linear_search(sc, replace(base, thresholds=r), ranges, delay, linear, n, n_fit, kind_name,
-                               per_rule, dt, say) for r in rules]
+        ends = _searches(sc, [replace(base, thresholds=r) for r in rules], ranges, delay, linear, n, n_fit,
+                         kind_name, per_rule, dt, say)
         best = min(ends, key=lambda c: c.score)
         if once and ("generalized-duhem" in linear or ("rate-dependent" in linear and best.structure.rate_dependent)):
             say("generalized Duhem model")
@@ -691,6 +704,30 @@ def _input_lags(ranges: SearchRanges, dt: float | None, linear: list[str]) -> tu
     """The input lags a search tries: none, and the data's range where a kind with lags is allowed."""
     rate_ok = dt is not None and any(k in ("rate-dependent", "asymmetric-pi") for k in linear)
     return (0.0, *ranges.input_taus) if rate_ok else (0.0,)
+
+
+def _searches(sc: _Scorer, bases: list[Structure], ranges: SearchRanges, delay: Any, linear: list[str],
+              n: int | None, n_fit: int, kind_name: str | None, statics: Sequence[str], dt: float | None,
+              say: Callable[[str], None]) -> list[_Candidate]:
+    """:func:`_linear_search` from each static part, the first on ``sc`` and each other one on a
+    scorer of its own in a thread of its own (the searches are independent, and their kernels and
+    BLAS products release the GIL); the others' candidates then join ``sc``'s, in order, each
+    structure once. The candidates are those of the searches run one after the other, bit for bit
+    (each fit depends only on its structure and the data)."""
+    if len(bases) == 1:
+        return [_linear_search(sc, bases[0], ranges, delay, linear, n, n_fit, kind_name, statics, dt, say)]
+    from concurrent.futures import ThreadPoolExecutor
+
+    others = [sc.sibling() for _ in bases[1:]]
+    quiet: Callable[[str], None] = lambda text: None  # noqa: E731 - progress is said by the first search
+    with ThreadPoolExecutor(len(others)) as pool:
+        futures = [pool.submit(_linear_search, o, b, ranges, delay, linear, n, n_fit, kind_name, statics, dt, quiet)
+                   for o, b in zip(others, bases[1:])]
+        ends = [_linear_search(sc, bases[0], ranges, delay, linear, n, n_fit, kind_name, statics, dt, say)]
+        ends += [f.result() for f in futures]
+    for o in others:
+        sc.adopt(o)
+    return ends
 
 
 def _linear_search(sc: _Scorer, base: Structure, ranges: SearchRanges, delay: Any, linear: list[str],
