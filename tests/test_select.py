@@ -181,6 +181,28 @@ def test_the_search_keeps_few_designs_and_chooses_exactly_as_with_all(monkeypatc
     assert repr(few[2]) == repr(every[2])
 
 
+def test_the_threaded_searches_choose_and_list_exactly_as_one_after_the_other(monkeypatch):
+    # the two P-I threshold rules' searches run on two threads, each with a scorer of its own;
+    # the candidates (labels, order, hold-out errors), the choice and the model are those of
+    # the serial search, bit for bit
+    import piezohyst.identify.select as sel
+
+    rig = ph.VirtualRig(seed=2)
+    d = rig.excite(record(freq=3.0))
+
+    def run():
+        fit = ph.fit_model(d.u, d.y, rig.dt)
+        return fit.info["chosen"], [(c["label"], c["holdout_rmse"]) for c in fit.info["candidates"]], fit.model.to_dict()
+
+    monkeypatch.setattr(sel, "PARALLEL_SEARCHES", False)
+    serial = run()
+    monkeypatch.setattr(sel, "PARALLEL_SEARCHES", True)
+    threaded = run()
+    assert len(serial[1]) > 50
+    assert serial[0] == threaded[0] and serial[1] == threaded[1]
+    assert repr(serial[2]) == repr(threaded[2])
+
+
 def test_designs_of_one_static_block_share_its_gram_and_agree_with_the_whole_design():
     # the Gram matrix is formed block by block, S'S once per static block and number of rows
     # (most of the work on a wide Preisach grid), E'[S | E] per design: the same matrix as the

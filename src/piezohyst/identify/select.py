@@ -84,6 +84,9 @@ HOLDOUT = 0.3
 #: Below this correlation of output with input (in magnitude) a falling output is said not to
 #: follow the input at all, rather than to fall as it rises (the message of ``fit_model``).
 WEAK_CORRELATION = 0.3
+#: Run the two P-I threshold rules' searches on two threads (:func:`_searches`); False runs them
+#: one after the other, with the same result.
+PARALLEL_SEARCHES = True
 #: Designs (one per structure) the search keeps at once (:meth:`_Scorer._prepared`).
 PREPARED_KEPT = 4
 #: Static parts' columns the search keeps at once (:class:`_Blocks`).
@@ -714,8 +717,8 @@ def _searches(sc: _Scorer, bases: list[Structure], ranges: SearchRanges, delay: 
     BLAS products release the GIL); the others' candidates then join ``sc``'s, in order, each
     structure once. The candidates are those of the searches run one after the other, bit for bit
     (each fit depends only on its structure and the data)."""
-    if len(bases) == 1:
-        return [_linear_search(sc, bases[0], ranges, delay, linear, n, n_fit, kind_name, statics, dt, say)]
+    if len(bases) == 1 or not PARALLEL_SEARCHES:
+        return [_linear_search(sc, b, ranges, delay, linear, n, n_fit, kind_name, statics, dt, say) for b in bases]
     from concurrent.futures import ThreadPoolExecutor
 
     others = [sc.sibling() for _ in bases[1:]]
