@@ -203,6 +203,33 @@ def test_the_threaded_searches_choose_and_list_exactly_as_one_after_the_other(mo
     assert repr(serial[2]) == repr(threaded[2])
 
 
+def test_an_interrupted_search_stops_the_other_thread_at_its_next_candidate(monkeypatch):
+    # Ctrl-C in the first search (here: raised by the progress callback as the search starts)
+    # reaches the caller, and the search on the other thread stops at its next candidate instead
+    # of running to its end (a whole search tries dozens)
+    import piezohyst.identify.select as sel
+
+    rig = ph.VirtualRig(seed=2)
+    d = rig.excite(record(freq=3.0))
+    siblings = []
+    make = sel._Scorer.sibling
+
+    def recorded(self):
+        s = make(self)
+        siblings.append(s)
+        return s
+
+    monkeypatch.setattr(sel._Scorer, "sibling", recorded)
+
+    def progress(text):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        ph.fit_model(d.u, d.y, rig.dt, progress=progress)
+    assert len(siblings) == 1 and siblings[0].cancelled
+    assert len(siblings[0].tried) < 10, [c.label for c in siblings[0].tried]
+
+
 def test_designs_of_one_static_block_share_its_gram_and_agree_with_the_whole_design():
     # the Gram matrix is formed block by block, S'S once per static block and number of rows
     # (most of the work on a wide Preisach grid), E'[S | E] per design: the same matrix as the

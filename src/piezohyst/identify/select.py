@@ -215,6 +215,10 @@ class _Candidate:
     per_set: list[float] = field(default_factory=list)
 
 
+class _SearchCancelled(Exception):
+    """A search in another thread was told to stop (:func:`_searches`)."""
+
+
 class _Scorer:
     """Fits a structure on the fitting rows and scores it on the hold-out or validation sets."""
 
@@ -236,6 +240,8 @@ class _Scorer:
         self._grams: dict[Any, tuple[dict[int, FloatArray], dict[int, FloatArray]]] = {}
         self._done: dict[Structure, _Candidate] = {}
         self._blocks = _Blocks()
+        #: set from another thread to stop a search at its next candidate (:func:`_searches`)
+        self.cancelled = False
 
     def score_model(self, model: Any, delay: int, pred_train: FloatArray | None) -> tuple[float, list[float]]:
         if not self.validation:
@@ -287,6 +293,8 @@ class _Scorer:
         return pre
 
     def linear(self, st: Structure) -> _Candidate:
+        if self.cancelled:
+            raise _SearchCancelled
         done = self._done.get(st)
         if done is not None:
             return done
@@ -726,7 +734,13 @@ def _searches(sc: _Scorer, bases: list[Structure], ranges: SearchRanges, delay: 
     with ThreadPoolExecutor(len(others)) as pool:
         futures = [pool.submit(_linear_search, o, b, ranges, delay, linear, n, n_fit, kind_name, statics, dt, quiet)
                    for o, b in zip(others, bases[1:])]
-        ends = [_linear_search(sc, bases[0], ranges, delay, linear, n, n_fit, kind_name, statics, dt, say)]
+        try:
+            ends = [_linear_search(sc, bases[0], ranges, delay, linear, n, n_fit, kind_name, statics, dt, say)]
+        except BaseException:
+            # (Ctrl-C, an error): the other searches stop at their next candidate, not at their end
+            for o in others:
+                o.cancelled = True
+            raise
         ends += [f.result() for f in futures]
     for o in others:
         sc.adopt(o)
