@@ -194,6 +194,7 @@ def test_the_threaded_searches_choose_and_list_exactly_as_one_after_the_other(mo
         fit = ph.fit_model(d.u, d.y, rig.dt)
         return fit.info["chosen"], [(c["label"], c["holdout_rmse"]) for c in fit.info["candidates"]], fit.model.to_dict()
 
+    monkeypatch.setattr(sel, "_more_threads_wanted", lambda: True)  # whatever this machine's numba says
     monkeypatch.setattr(sel, "PARALLEL_SEARCHES", False)
     serial = run()
     monkeypatch.setattr(sel, "PARALLEL_SEARCHES", True)
@@ -220,6 +221,7 @@ def test_an_interrupted_search_stops_the_other_thread_at_its_next_candidate(monk
         return s
 
     monkeypatch.setattr(sel._Scorer, "sibling", recorded)
+    monkeypatch.setattr(sel, "_more_threads_wanted", lambda: True)  # whatever this machine's numba says
 
     def progress(text):
         raise KeyboardInterrupt
@@ -228,6 +230,30 @@ def test_an_interrupted_search_stops_the_other_thread_at_its_next_candidate(monk
         ph.fit_model(d.u, d.y, rig.dt, progress=progress)
     assert len(siblings) == 1 and siblings[0].cancelled
     assert len(siblings[0].tried) < 10, [c.label for c in siblings[0].tried]
+
+
+def test_one_numba_thread_means_one_search_thread(monkeypatch):
+    # a fleet's worker (one per core) sets numba to one thread: its fits start no thread either
+    import numba
+
+    import piezohyst.identify.select as sel
+
+    rig = ph.VirtualRig(seed=2)
+    d = rig.excite(record(freq=3.0))
+    siblings = []
+    make = sel._Scorer.sibling
+    monkeypatch.setattr(sel._Scorer, "sibling", lambda self: siblings.append(make(self)) or siblings[-1])
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = ph.fit_model(d.u, d.y, rig.dt)
+    finally:
+        numba.set_num_threads(before)
+    assert siblings == []
+    if before > 1:
+        two = ph.fit_model(d.u, d.y, rig.dt)
+        assert len(siblings) == 1
+        assert one.info["chosen"] == two.info["chosen"]
 
 
 def test_designs_of_one_static_block_share_its_gram_and_agree_with_the_whole_design():

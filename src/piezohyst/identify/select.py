@@ -84,8 +84,9 @@ HOLDOUT = 0.3
 #: Below this correlation of output with input (in magnitude) a falling output is said not to
 #: follow the input at all, rather than to fall as it rises (the message of ``fit_model``).
 WEAK_CORRELATION = 0.3
-#: Run the two P-I threshold rules' searches on two threads (:func:`_searches`); False runs them
-#: one after the other, with the same result.
+#: Run the two P-I threshold rules' searches on two threads (:func:`_searches`), unless numba's
+#: parallel regions were set to one thread; False runs them one after the other, with the same
+#: result.
 PARALLEL_SEARCHES = True
 #: Designs (one per structure) the search keeps at once (:meth:`_Scorer._prepared`).
 PREPARED_KEPT = 4
@@ -717,6 +718,14 @@ def _input_lags(ranges: SearchRanges, dt: float | None, linear: list[str]) -> tu
     return (0.0, *ranges.input_taus) if rate_ok else (0.0,)
 
 
+def _more_threads_wanted() -> bool:
+    """Whether this thread may start another: not where numba's parallel regions were set to one
+    thread (a fleet's workers, one per core, :mod:`piezohyst.fleet`; ``NUMBA_NUM_THREADS=1``)."""
+    import numba
+
+    return bool(numba.get_num_threads() > 1)
+
+
 def _searches(sc: _Scorer, bases: list[Structure], ranges: SearchRanges, delay: Any, linear: list[str],
               n: int | None, n_fit: int, kind_name: str | None, statics: Sequence[str], dt: float | None,
               say: Callable[[str], None]) -> list[_Candidate]:
@@ -725,7 +734,7 @@ def _searches(sc: _Scorer, bases: list[Structure], ranges: SearchRanges, delay: 
     BLAS products release the GIL); the others' candidates then join ``sc``'s, in order, each
     structure once. The candidates are those of the searches run one after the other, bit for bit
     (each fit depends only on its structure and the data)."""
-    if len(bases) == 1 or not PARALLEL_SEARCHES:
+    if len(bases) == 1 or not PARALLEL_SEARCHES or not _more_threads_wanted():
         return [_linear_search(sc, b, ranges, delay, linear, n, n_fit, kind_name, statics, dt, say) for b in bases]
     from concurrent.futures import ThreadPoolExecutor
 
