@@ -155,6 +155,28 @@ def test_a_model_that_misses_the_loop_shape_is_flagged():
     assert any("direction" in w or "hold-out error" in w for w in fit.warnings), fit.warnings
 
 
+def search_outcome(u, y, dt):
+    """What a search decides and lists: the choice, the candidates with their hold-out errors, the model."""
+    fit = ph.fit_model(u, y, dt)
+    return fit.info["chosen"], [(c["label"], c["holdout_rmse"]) for c in fit.info["candidates"]], fit.model.to_dict()
+
+
+def assert_same_search(a, b):
+    assert len(a[1]) > 50
+    assert a[0] == b[0] and a[1] == b[1]
+    assert repr(a[2]) == repr(b[2])
+
+
+def recorded_siblings(monkeypatch):
+    """The scorers that fit_model's threaded searches make, as they are made."""
+    import piezohyst.identify.select as sel
+
+    siblings = []
+    make = sel._Scorer.sibling
+    monkeypatch.setattr(sel._Scorer, "sibling", lambda self: siblings.append(make(self)) or siblings[-1])
+    return siblings
+
+
 def test_the_search_keeps_few_designs_and_chooses_exactly_as_with_all(monkeypatch):
     # the search keeps only the last few designs and static parts (memory: 1.28 GB -> 0.56 GB
     # peak on the VirtualRig's commissioning record); one it dropped is built again bit for bit,
@@ -166,19 +188,12 @@ def test_the_search_keeps_few_designs_and_chooses_exactly_as_with_all(monkeypatc
     u = record(freq=2.0)
     y = true.simulate(u) + 0.01 * np.convolve(rng.standard_normal(u.size), np.ones(20) / 20, "same")
 
-    def run():
-        fit = ph.fit_model(u, y, DT)
-        return fit.info["chosen"], [(c["label"], c["holdout_rmse"]) for c in fit.info["candidates"]], fit.model.to_dict()
-
     monkeypatch.setattr(sel, "PREPARED_KEPT", 1)
     monkeypatch.setattr(sel, "STATIC_KEPT", 1)
-    few = run()
+    few = search_outcome(u, y, DT)
     monkeypatch.setattr(sel, "PREPARED_KEPT", 10**6)
     monkeypatch.setattr(sel, "STATIC_KEPT", 10**6)
-    every = run()
-    assert len(few[1]) > 50
-    assert few[0] == every[0] and few[1] == every[1]
-    assert repr(few[2]) == repr(every[2])
+    assert_same_search(few, search_outcome(u, y, DT))
 
 
 def test_the_threaded_searches_choose_and_list_exactly_as_one_after_the_other(monkeypatch):
@@ -189,19 +204,11 @@ def test_the_threaded_searches_choose_and_list_exactly_as_one_after_the_other(mo
 
     rig = ph.VirtualRig(seed=2)
     d = rig.excite(record(freq=3.0))
-
-    def run():
-        fit = ph.fit_model(d.u, d.y, rig.dt)
-        return fit.info["chosen"], [(c["label"], c["holdout_rmse"]) for c in fit.info["candidates"]], fit.model.to_dict()
-
     monkeypatch.setattr(sel, "_more_threads_wanted", lambda: True)  # whatever this machine's numba says
     monkeypatch.setattr(sel, "PARALLEL_SEARCHES", False)
-    serial = run()
+    serial = search_outcome(d.u, d.y, rig.dt)
     monkeypatch.setattr(sel, "PARALLEL_SEARCHES", True)
-    threaded = run()
-    assert len(serial[1]) > 50
-    assert serial[0] == threaded[0] and serial[1] == threaded[1]
-    assert repr(serial[2]) == repr(threaded[2])
+    assert_same_search(serial, search_outcome(d.u, d.y, rig.dt))
 
 
 def test_an_interrupted_search_stops_the_other_thread_at_its_next_candidate(monkeypatch):
@@ -212,15 +219,7 @@ def test_an_interrupted_search_stops_the_other_thread_at_its_next_candidate(monk
 
     rig = ph.VirtualRig(seed=2)
     d = rig.excite(record(freq=3.0))
-    siblings = []
-    make = sel._Scorer.sibling
-
-    def recorded(self):
-        s = make(self)
-        siblings.append(s)
-        return s
-
-    monkeypatch.setattr(sel._Scorer, "sibling", recorded)
+    siblings = recorded_siblings(monkeypatch)
     monkeypatch.setattr(sel, "_more_threads_wanted", lambda: True)  # whatever this machine's numba says
 
     def progress(text):
@@ -236,13 +235,10 @@ def test_one_numba_thread_means_one_search_thread(monkeypatch):
     # a fleet's worker (one per core) sets numba to one thread: its fits start no thread either
     import numba
 
-    import piezohyst.identify.select as sel
 
     rig = ph.VirtualRig(seed=2)
     d = rig.excite(record(freq=3.0))
-    siblings = []
-    make = sel._Scorer.sibling
-    monkeypatch.setattr(sel._Scorer, "sibling", lambda self: siblings.append(make(self)) or siblings[-1])
+    siblings = recorded_siblings(monkeypatch)
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
