@@ -235,7 +235,6 @@ def test_one_numba_thread_means_one_search_thread(monkeypatch):
     # a fleet's worker (one per core) sets numba to one thread: its fits start no thread either
     import numba
 
-
     rig = ph.VirtualRig(seed=2)
     d = rig.excite(record(freq=3.0))
     siblings = recorded_siblings(monkeypatch)
