@@ -84,12 +84,6 @@ KNOWN_SHORT_FBL = {
     ("relay Preisach", 3.0): _STAIRS + "; at 3 Hz the period (1666.7 samples) is not whole, so the stair "
                              "pattern shifts from cycle to cycle and cannot be learnt; 1.15 % measured",
     ("relay Preisach", 5.0): _STAIRS + "; 1.43 % measured",
-    ("falling after reversal", 3.0): "the loop goes on falling for a moment after each reversal, so "
-                                     "learning's path is luck at the 1 % level: with the tuning's "
-                                     "trials that its probes do not answer no longer counted as well "
-                                     "damped (ki 7.48 -> 2.45 1/s), 1.08 % with noise seed 0 and "
-                                     "0.82 / 0.78 / 0.80 % with seeds 1-3 (0.83 / 0.81 / 0.78 / 0.82 "
-                                     "% before); measured",
 }
 
 #: cycles of a feedback + learning run, and the last ones read: the error once learning has converged
