@@ -137,14 +137,11 @@ def preisach_outputs_into(v: FloatArray, alpha: FloatArray, beta: FloatArray, in
     """:func:`preisach_outputs` at the rows ``0, stride, 2 stride, ...`` written into ``out`` (one
     row per kept sample, one column per hysteron; may be a view into a wider matrix).
 
-    Only the kept samples, the input's turning points and the last sample are stepped: a
-    hysteron's state after a monotone stretch of input is its state after one step to the
-    stretch's end (rising, both of its ramps rise with ``v``, so the state stays below the
-    falling one and ``max(z, up(v_1), up(v_2)) = max(z, up(v_2))``; falling likewise), so the
-    samples inside a stretch change nothing and are skipped. The result is bit for bit that of
-    stepping every sample (:func:`~piezohyst.models.play.inside_monotone_stretch`); the work
-    falls from samples x hysterons to (kept rows + turning points) x hysterons, the stride times
-    less on a smooth record."""
+    Only the kept samples, the input's turning points and the last sample are stepped (the
+    samples inside a monotone stretch change no hysteron's state:
+    :func:`~piezohyst.models.play.inside_monotone_stretch`), bit for bit as stepping every
+    sample; the work falls from samples x hysterons to (kept rows + turning points) x hysterons,
+    the stride times less on a smooth record."""
     last = 0.0
     for k in range(v.shape[0]):
         if k % stride != 0 and inside_monotone_stretch(v, k, last):
