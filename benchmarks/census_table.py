@@ -17,15 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from tests.plants.census import census  # noqa: E402
-from zoo_table import row  # noqa: E402
-
-
-def main() -> None:
-    print("| stage (chosen model; integral gain) | FF 1 / 3 / 5 Hz | FF+FB+learning 1 / 3 / 5 Hz | noise floor (FF) 1 / 3 / 5 Hz |")
-    print("|---|---|---|---|")
-    for stage in census(seed=0):
-        print(row(stage), flush=True)
-
+from zoo_table import main as print_table  # noqa: E402
 
 if __name__ == "__main__":
-    main()
+    print_table(census(seed=0))
