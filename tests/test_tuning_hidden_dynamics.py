@@ -28,7 +28,16 @@ were set once, before the fix, as a plausible stage of each kind):
   removal reverses the stage, which then answers 4.4x more than the probe's effect at the mean
   slope: the bound on the trial's error allowed 4x, so every trial was stopped and the stage got
   no feedback at all (ki = 0). The bound now allows the steepest answer the model gives at the
-  hold, either way.
+  hold, either way;
+* Maxwell-slip elements whose slip is viscous (rate-dependent loops; a probe of structures outside
+  the zoo and the census): the feedforward held the level 0.3-0.4 um off, less than twice a
+  probe's effect at the mean slope, so the trials probed at once; but on the flat slope after
+  the probes' reversals cancelling that error took 11 V of command against a 1.2 V probe, and
+  every trial was stopped, then at half the gains the stage answered too slowly to show anything
+  (a quarter of the probe): ki = 0, feedback alone 0.54 / 0.75 % e_max at 1 / 5 Hz. A hold that
+  needs more than twice a probe's command is now settled first, and a trial that shows nothing
+  (not stopped, no overshoot, no growing oscillation, the answer too slow) sends the ladder up,
+  not down (only an answered trial proves a gain).
 """
 
 from __future__ import annotations
@@ -150,6 +159,26 @@ class Dahl:
             self.z += self.sigma * h * max(0.0, 1.0 - self.z * s / self.f) ** self.a
         self.v = v
         return self.k * v + self.z
+
+
+class ViscousMaxwellSlip:
+    """Maxwell-slip elements (thresholds up to 40 % of the range, weights falling linearly to 0.4)
+    whose slip is viscous: an element past its threshold moves towards it with time constant
+    ``tau`` (loops that widen with the rate), sampled at ``dt``."""
+
+    def __init__(self, v_max: float, stroke_um: float, dt: float, n: int = 10, tau: float = 0.004):
+        self.r = np.linspace(0.0, 0.4 * v_max, n)
+        w = np.linspace(1.0, 0.4, n)
+        self.w = w / w.sum() * stroke_um / v_max
+        self.a = 1.0 - np.exp(-dt / tau)
+        self.reset()
+
+    def reset(self) -> None:
+        self.z = np.zeros(self.r.size)
+
+    def step(self, v: float) -> float:
+        self.z += self.a * (np.clip(self.z, v - self.r, v + self.r) - self.z)
+        return float(self.w @ self.z)
 
 
 def _verified(stage):
@@ -299,3 +328,22 @@ def test_learning_keeps_its_band_where_the_tuning_saw_a_resonance():
     per_cycle = [100.0 * float(np.abs(out.error[k * period:(k + 1) * period]).max()) / (b - a) for k in range(12)]
     assert max(per_cycle[1:]) < 1.0, per_cycle
     assert out.info["learning_cutoff_hz"] == 75.0  # 15 harmonics of 5 Hz, where it started
+
+
+@pytest.mark.slow
+def test_a_hold_flat_after_reversals_is_settled_before_probing_and_slow_answers_climb():
+    """The viscous Maxwell-slip stage (module docstring; not tuned on): ki = 0 before."""
+    stage = Stage("viscous Maxwell-slip, 10 kHz, 0..120 V, 25 um, delay 1", ViscousMaxwellSlip(120.0, 25.0, 1e-4),
+                  1e-4, (0.0, 120.0), tau_amp=2e-4, kv=((0.05, 0.02),), fn_hz=2500.0, zeta=0.05, noise_um=0.006,
+                  delay_samples=1, seed=21)
+    ctl, tu, checks = _verified(stage)
+    first = tu.experiments[0]
+    assert not first["aborted"] and first["settled_first"], tu.method
+    assert any(e["well_damped"] and e["answered"] for e in tu.experiments), tu.method
+    a, b = steady_range(stage)
+    for freq in (1.0, 5.0):
+        period = int(round(1.0 / (freq * stage.dt)))
+        ff = ctl.track(ph.sinusoid(freq, 3, a, b, stage.dt), feedback=False, learning=False,
+                       period=period).e_max_percent
+        # the feedback helps: 0.31 / 0.58 % against 0.55 / 1.07 % with the feedforward alone
+        assert _e_max_last(ctl, stage, freq, learning=False) < 0.8 * ff, (freq, ff, tu.method)

@@ -468,7 +468,8 @@ def tune_integral_safely(
        effect at the steepest slope the model gives at the hold, either way (a loop that
        saturates after each reversal answers a reversal more steeply than on average). A trial
        that starts with the hold further off the level than :data:`SETTLED_PROBES` times the
-       probe's effect at the mean slope (the model off at that level,
+       probe's effect at the mean slope (or is stopped with the hold off by less, but by more
+       than a probe's command at the slope after a reversal: then once more) (the model off at that level,
        the stage still creeping or drifting) first lets the feedback take that error out, probe
        off, within the same bounds widened by that error (and the command that cancels it, at
        the slope after a reversal: cancelling it may reverse the stage's motion); the
@@ -605,43 +606,56 @@ def tune_integral_safely(
         return hold_at_level(plant, ff, pid, **kw) if fast is NotImplemented else fast  # type: ignore[no-any-return]
 
     def trial(ki: float) -> bool:
-        """Probe the loop at gain ki; True when it is well damped."""
+        """Probe the loop at gain ki; True when it is well damped (:func:`silent` after a False:
+        it showed nothing either way)."""
         pid.ki = ki
         # long enough to settle (8 / ki) and to see ten periods of a loop oscillating where the
         # model's phase reaches -180 degrees
         n_p = int(min(max(math.ceil(8.0 / (ki * dt)), math.ceil(10.0 / (f_pc * dt)), 100),
                       max(round(0.25 / dt), 100)))
-        answers = []
-        ringing: list[float] = []  # per probe segment: the error's sample-to-sample RMS, second half
-        aborted = False
-        integral0 = pid.integral
-        state["u_lo"], state["u_hi"] = math.inf, -math.inf
-        offset = level - state["y"]
-        settle = abs(offset) > SETTLED_PROBES * y_probe
-        if settle:
-            # the feedforward alone holds the level with an error larger than the probe's effect
-            # (a model off at this level, the stage still creeping): the feedback first takes it
-            # out, probe off, so that the probes' answers are answers to the probes
-            fb0 = pid.integral * volts_per_um
-            aborted = run(n_p, False, fb0, offset, True, offset=offset) is None
-        for rep in range(0 if aborted else 2 * opt.repeats):
-            sign = 1.0 if rep % 2 == 0 else -1.0  # probe on, then off
-            fb0 = pid.integral * volts_per_um
-            fbs = run(n_p, sign > 0, fb0, level - state["y"], True)
-            if fbs is None:
-                aborted = True
-                break
-            # the feedback cancels the probe: its answer runs from 0 towards 1 (of the probe)
-            answers.append(-sign * (fbs - fb0) / probe)
-            ringing.append(_error_ripple(fbs, fb0, ki * dt * volts_per_um))
-        if aborted:  # back to where the trial began, probe off, feedforward alone, and settle
-            pid.integral = integral0
-            pid.ki = 0.0
-            run(n_p, False, 0.0, 0.0, False)
-            overshoot, peak = math.inf, math.nan
-        else:
-            mean = _smooth(np.mean(answers, axis=0), max(1, int(round(0.5 / (ki * dt)))))
-            overshoot, peak = answer_overshoot(mean), float(mean.max())
+        settle_anyway = False  # the second attempt of a trial stopped by an unsettled hold
+        while True:
+            answers = []
+            ringing: list[float] = []  # per probe segment: the error's sample-to-sample RMS, second half
+            aborted = False
+            integral0 = pid.integral
+            state["u_lo"], state["u_hi"] = math.inf, -math.inf
+            offset = level - state["y"]
+            settle = settle_anyway or abs(offset) > SETTLED_PROBES * y_probe
+            if settle:
+                # the feedforward alone holds the level with an error larger than the probe's effect
+                # (a model off at this level, the stage still creeping): the feedback first takes it
+                # out, probe off, so that the probes' answers are answers to the probes
+                fb0 = pid.integral * volts_per_um
+                aborted = run(n_p, False, fb0, offset, True, offset=offset) is None
+            for rep in range(0 if aborted else 2 * opt.repeats):
+                sign = 1.0 if rep % 2 == 0 else -1.0  # probe on, then off
+                fb0 = pid.integral * volts_per_um
+                fbs = run(n_p, sign > 0, fb0, level - state["y"], True)
+                if fbs is None:
+                    aborted = True
+                    break
+                # the feedback cancels the probe: its answer runs from 0 towards 1 (of the probe)
+                answers.append(-sign * (fbs - fb0) / probe)
+                ringing.append(_error_ripple(fbs, fb0, ki * dt * volts_per_um))
+            if aborted:  # back to where the trial began, probe off, feedforward alone, and settle
+                pid.integral = integral0
+                pid.ki = 0.0
+                run(n_p, False, 0.0, 0.0, False)
+                if not settle and abs(offset) * volts_per_um_reversed > probe:
+                    # the probes started on a hold whose error, small against the probe's effect
+                    # at the mean slope, takes more than a probe of command to cancel on the flat
+                    # slope after their reversals, and that may be what stopped them (a viscous
+                    # Maxwell-slip stage: 0.3-0.4 um took 11 V against a 1.2 V probe, and every
+                    # trial was stopped: no feedback at all): once more, the hold settled first
+                    settle_anyway = True
+                    pid.ki = ki
+                    continue
+                overshoot, peak = math.inf, math.nan
+            else:
+                mean = _smooth(np.mean(answers, axis=0), max(1, int(round(0.5 / (ki * dt)))))
+                overshoot, peak = answer_overshoot(mean), float(mean.max())
+            break
         # a loop that amplifies a resonance the model does not have: the probe's answer can look
         # well damped while an oscillation grows underneath it, from the sensor's noise, over
         # the trial (a 180 Hz, 1 % damped stage: overshoot 0.18 at a gain whose oscillation
@@ -665,21 +679,31 @@ def tune_integral_safely(
                             "answered": answered, "answer_peak": None if aborted else peak,
                             "samples": n_p, "well_damped": ok, "probe_V": probe,
                             "command_band_V": (state["u_lo"], state["u_hi"]),
-                            "hold_error_um": offset, "settled_first": settle,
+                            "hold_error_um": offset, "settled_first": settle, "settled_on_retry": settle_anyway,
                             "ripple_over_noise": ripple, "ripple_growth": growth, "oscillation_grows": grows,
                             "ripples": [r / ripple0 if ripple0 > 0 else 0.0 for r in ringing]})
         return ok
 
+    def silent() -> bool:
+        """The last trial neither aborted, nor overshot, nor grew an oscillation, but the stage
+        did not answer half its probe within the trial (the loop, flat after the probes'
+        reversals, too slow at that gain to show its damping): it proved nothing either way."""
+        e = experiments[-1]
+        return (not e["aborted"] and not e["answered"] and not e["oscillation_grows"]
+                and e["overshoot"] <= opt.overshoot_limit)
+
     ki_ok = 0.0
     try:
         ki = opt.start_fraction * ki_model
-        if trial(ki):  # up the ladder while the loop stays well damped
-            ki_ok = ki
+        first = trial(ki)
+        if first or silent():  # up the ladder while the loop stays well damped (or shows nothing yet)
+            ki_ok = ki if first else 0.0
             while ki * opt.gain_step <= ki_ladder_top * (1 + 1e-9):
                 ki *= opt.gain_step
-                if not trial(ki):
+                if trial(ki):
+                    ki_ok = ki
+                elif ki_ok > 0 or not silent():
                     break
-                ki_ok = ki
         else:  # the model overestimates what the plant takes: down, halving, at most five times
             for _ in range(5):
                 ki *= 0.5
