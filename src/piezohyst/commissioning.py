@@ -600,8 +600,11 @@ class CommissionedController:
         lim = self._limits()
         lo, hi = (float(v) for v in np.percentile(self.identification.y, [0.5, 99.5]))
         f = min(VERIFY_HZ, _fastest_full_range_hz(lim, dt)) if lim.span > 0 else VERIFY_HZ
-        ref = sinusoid(f, 2, lo + 0.1 * (hi - lo), lo + 0.9 * (hi - lo), dt)
-        return ref, max(int(round(1.0 / (f * dt))), 1)
+        period = max(int(round(1.0 / (f * dt))), 1)
+        # a whole number of samples per cycle: two cycles of a frequency slowed by the step limit
+        # (4150.6 samples) came one sample short of two rounded periods, and the run was refused
+        ref = sinusoid(1.0 / (period * dt), 2, lo + 0.1 * (hi - lo), lo + 0.9 * (hi - lo), dt)
+        return ref, period
 
     def _verify_feedback(self) -> None:
         """Module docstring, step 4: halve the tuned gain while the feedback tracks the
@@ -722,13 +725,37 @@ class CommissionedController:
         # the loop compiled where every part has a kernel (the VirtualRig, a rate-dependent P-I
         # inverse, a PID); it gives up at the first sample where anything unusual happens, and the
         # run is then made again from the start in Python, which handles it as it always has
-        res = self._track_step_run(r, feedback=feedback, learning=learning, period=period, label=label,
-                                   compiled=True, conditioning=conditioning)
-        if res is None:
+        try:
             res = self._track_step_run(r, feedback=feedback, learning=learning, period=period, label=label,
-                                       compiled=False, conditioning=conditioning)
+                                       compiled=True, conditioning=conditioning)
+            if res is None:
+                res = self._track_step_run(r, feedback=feedback, learning=learning, period=period, label=label,
+                                           compiled=False, conditioning=conditioning)
+        except UnstableLoopError as exc:
+            raise self._too_fast_for_the_step_limit(r, exc) from None
         assert res is not None  # the Python loop always ends with a result (or raises)
         return res
+
+    def _too_fast_for_the_step_limit(self, r: FloatArray, exc: UnstableLoopError) -> UnstableLoopError:
+        """``exc``, or where the reference asks the feedforward for faster commands than the step
+        limit lets through, an error that says so: the guard slowed the command, and the feedback
+        wound up against it (a stage behind an 800 V/s amplifier, commissioned within it, and a
+        5 Hz sinusoid over 80 % of its range: "lower the feedback gains" was not the remedy)."""
+        lim = self._limits()
+        try:
+            ff = np.asarray(self.feedforward().command(r), dtype=np.float64)
+        except Exception:  # noqa: BLE001 - only a better message
+            return exc
+        fastest = float(np.max(np.abs(np.diff(ff)))) if ff.size > 1 else 0.0
+        if not fastest > lim.max_step:
+            return exc
+        dt = self.plant.dt
+        reason = (f"{exc.reason}; the reference asks the feedforward for steps of up to {fastest:.3g} V per sample "
+                  f"({fastest / dt:.4g} V/s), more than the step limit lets through ({lim.max_step:.3g} V per sample, "
+                  f"{lim.max_step / dt:.4g} V/s, max_step_fraction={lim.max_step / lim.span:.3g}): the command was "
+                  "slowed and the feedback wound up against it")
+        return UnstableLoopError(f"{reason}. Slow the reference down (or, if the amplifier follows faster, raise "
+                                 "max_step_fraction)", reason=reason, sample=exc.sample)
 
     def _track_step_run(self, r: FloatArray, *, feedback: bool, learning: bool, period: int | None,
                         label: str, compiled: bool, conditioning: bool = False) -> TrackingResult | None:
@@ -1022,6 +1049,102 @@ def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, p
     return True
 
 
+class AmplifierSlewWarning(UserWarning):
+    """``commission``'s identification fits worst where the command moves fastest: the amplifier
+    may not follow it (a slew-rate or current limit); see :func:`followed_step`."""
+
+
+#: The slew estimate (:func:`followed_step`): the steps tried fall from the record's largest by
+#: factors of sqrt(2) to a 64th of it, then by an eighth of an octave around the best; a step is
+#: taken when a P-I model of the record slowed to it fits with at most this share of the RMS
+#: error of the record as sent (a stage behind a 1,500 V/s amplifier on 0-100 V, 10 kHz: 5.8 % of
+#: the span as sent, 1.2 % slowed to 1,388 V/s; the zoo's stages, whose amplifiers follow,
+#: 0.77-2.26 % as sent and nothing better slowed).
+SLEW_FIT_RATIO = 0.5
+_slowing = threading.local()
+
+
+def followed_step(u: Any, y: Any, *, warmup: int = 0, max_delay: int = 20) -> dict[str, Any] | None:
+    """The largest command step per sample an amplifier seems to follow, from a record of commands
+    ``u`` and displacements ``y``: the step ``s`` whose slewed commands
+    (:func:`~piezohyst.plant.rate_limited`) a 20-operator P-I model (delay chosen on held-out data,
+    up to ``max_delay``) fits best, the samples after ``warmup`` fitted. None when no step fits
+    with at most :data:`SLEW_FIT_RATIO` of the error of the commands as sent (the amplifier
+    follows them, or what the model misses is something else).
+
+    Returns ``{"max_step": s, "rmse_as_sent": ..., "rmse_slewed": ..., "tried": [(s, rmse), ...]}``.
+    """
+    from .identify import fit_pi
+    from .plant import rate_limited
+
+    u = np.asarray(u, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    steps = np.abs(np.diff(u))
+    largest = float(steps.max()) if steps.size else 0.0
+    if not largest > 0 or u.size - warmup < 200:
+        return None
+
+    def rmse(step: float) -> float:
+        v = rate_limited(u, step)[warmup:] if step < largest else u[warmup:]
+        return float(fit_pi(v, y[warmup:], 20, delay="auto", max_auto_delay=max_delay).rmse)
+
+    tried = {largest: rmse(largest)}
+    for k in range(1, 13):
+        tried[largest * 2.0 ** (-k / 2)] = rmse(largest * 2.0 ** (-k / 2))
+    best = min(tried, key=tried.__getitem__)
+    for k in (-3, -2, -1, 1, 2, 3):
+        s = best * 2.0 ** (k / 8)
+        if s < largest:
+            tried[s] = rmse(s)
+    best = min(tried, key=tried.__getitem__)
+    if not tried[best] <= SLEW_FIT_RATIO * tried[largest]:
+        return None
+    return {"max_step": best, "rmse_as_sent": tried[largest], "rmse_slewed": tried[best],
+            "tried": sorted(tried.items(), reverse=True)}
+
+
+#: The hold-out error (% of the output's span) of commissioning's fit above which it looks for an
+#: amplifier slower than the excitation even without the rate warning: an amplifier far slower
+#: smears the whole record, not only its fastest tenth (a stage behind 800 V/s on 0-100 V:
+#: 11.5 % of the span, the residual 17 % over the fastest tenth and 8 % over the slower half).
+SLEW_SEARCH_HOLDOUT_PERCENT = 5.0
+
+
+def _slower_amplifier(plant: Any, call: dict[str, Any], ds: Dataset, warmup: int, limits: CommandLimits,
+                      said: str, say: Callable[[str], None]) -> "CommissionedController | None":
+    """Where the identification run looks like an amplifier slower than the excitation (``said``:
+    what showed it), its slew (:func:`followed_step`) and ``commission`` again with a step limit
+    it follows, so that every command (the excitation's, the tuning's, tracking's) reaches the
+    stage as sent; None where the caller set the step limit or the excitation, where this is
+    the second time, or where no slew explains the run."""
+    if call["max_step_fraction"] is not None or call["excitation"] is not None or getattr(_slowing, "active", False):
+        return None
+    say("the amplifier's slew rate, from the identification run")
+    slew = followed_step(ds.u, ds.y, warmup=warmup)
+    if slew is None:
+        return None
+    dt = float(ds.dt)
+    fraction = slew["max_step"] / limits.span
+    warnings.warn(f"commissioning {type(plant).__name__}: {said}. A P-I model fits the run best with the commands "
+                  f"slowed to {slew['max_step']:.3g} V per sample ({slew['max_step'] / dt:.4g} V/s; RMS error "
+                  f"{slew['rmse_as_sent']:.3g} -> {slew['rmse_slewed']:.3g} um): the amplifier does not follow "
+                  f"faster commands (a slew-rate or current limit). Commissioning again with max_step_fraction="
+                  f"{fraction:.3g}, the controller's step limit from now on (declare the amplifier's, if you know "
+                  "it, to skip this)", AmplifierSlewWarning, stacklevel=3)
+    ctl = _commission_slower(plant, call, fraction)
+    ctl.info["slew_estimate"] = {k: v for k, v in slew.items() if k != "tried"}
+    return ctl
+
+
+def _commission_slower(plant: Any, call: dict[str, Any], fraction: float) -> "CommissionedController":
+    """``commission`` again with ``max_step_fraction=fraction``, once (it never slows again)."""
+    _slowing.active = True
+    try:
+        return commission(plant, **{**call, "max_step_fraction": fraction})
+    finally:
+        _slowing.active = False
+
+
 #: how far inside the input at which a non-monotone stage follows the command again the range is
 #: narrowed (fraction of the range)
 MONOTONE_MARGIN = 0.02
@@ -1189,6 +1312,13 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
             "with the sign that rises with the command (multiply it by -1)")
     mono = monotone_range(ds.u[warmup:], ds.y[warmup:])
     if not mono.monotone:
+        # an amplifier far slower than the excitation goes on moving the stage after the command
+        # has reversed: that looks like a stage that is not monotone (behind 400 V/s on 0-100 V
+        # it was refused with a range of 6 V to commission in)
+        slower = _slower_amplifier(plant, call, ds, warmup, limits,
+                                   f"the run looks not monotone ({mono.describe(limits.low, limits.high)})", say)
+        if slower is not None:
+            return slower
         return _commission_where_monotone(plant, call, mono, limits, excitation is not None)
     dead = dead_range(ds.u[warmup:], ds.y[warmup:])
     if dead.found:
@@ -1214,10 +1344,18 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     else:
         fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, progress=progress, warmup=warmup)
     by_rate = fit.info.get("residual_by_rate") or {}
-    if by_rate.get("amplifier_may_not_follow"):
-        warnings.warn(f"commissioning {type(plant).__name__}: {by_rate['warning']} (the excitation's largest step was "
-                      f"{float(np.max(np.abs(np.diff(ds.u)))):.3g} V per sample, max_step_fraction="
-                      f"{limits.max_step / limits.span:.3g})", UserWarning, stacklevel=2)
+    holdout_pct = (fit.info.get("holdout") or {}).get("percent_of_span")
+    poor = holdout_pct is not None and holdout_pct > SLEW_SEARCH_HOLDOUT_PERCENT
+    if by_rate.get("amplifier_may_not_follow") or poor:
+        said = (f"{by_rate['warning']} (the excitation's largest step was "
+                f"{float(np.max(np.abs(np.diff(ds.u)))):.3g} V per sample, max_step_fraction="
+                f"{limits.max_step / limits.span:.3g})" if by_rate.get("amplifier_may_not_follow") else
+                f"the model's hold-out error is {holdout_pct:.3g} % of the span")
+        slower = _slower_amplifier(plant, call, ds, warmup, limits, said, say)
+        if slower is not None:
+            return slower
+        if by_rate.get("amplifier_may_not_follow"):
+            warnings.warn(f"commissioning {type(plant).__name__}: {said}", AmplifierSlewWarning, stacklevel=2)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain,
                                  limits=limits, max_plays=max_plays, conditioning=bool(conditioning))
     tune_counts = None

@@ -452,6 +452,25 @@ def _guard_table(x: FloatArray, low: float, high: float, max_step: float, tol: f
     return out
 
 
+@njit
+def rate_limited(x: FloatArray, max_step: float) -> FloatArray:  # pragma: no cover - compiled
+    """``x`` as an amplifier that changes its output by at most ``max_step`` per sample (a slew
+    rate, ``max_step / dt``: a current limit into the stack's capacitance) delivers it, from
+    ``x[0]``.
+
+    >>> rate_limited(np.array([0.0, 5.0, 5.0, 5.0, 0.0]), 2.0).tolist()
+    [0.0, 2.0, 4.0, 5.0, 3.0]
+    """
+    out = np.empty(x.shape[0])
+    if x.shape[0] == 0:
+        return out
+    v = x[0]
+    for k in range(x.shape[0]):
+        v += min(max(x[k] - v, -max_step), max_step)
+        out[k] = v
+    return out
+
+
 class GuardedPlant:
     """A plant (either protocol) behind the safe layer (module docstring).
 
