@@ -82,8 +82,8 @@ _STAIRS = ("hard relays: the output climbs in stairs (up to 0.6 % of the stroke)
            "cycle; at 1 Hz it stays within 1 %, at 0.96 %)")
 KNOWN_SHORT_FBL = {
     ("relay Preisach", 3.0): _STAIRS + "; at 3 Hz the period (1666.7 samples) is not whole, so the stair "
-                             "pattern shifts from cycle to cycle and cannot be learnt; 1.15 % measured",
-    ("relay Preisach", 5.0): _STAIRS + "; 1.43 % measured",
+                             "pattern shifts from cycle to cycle and cannot be learnt; 1.10 % measured",
+    ("relay Preisach", 5.0): _STAIRS + "; 1.45 % measured",
 }
 
 #: cycles of a feedback + learning run, and the last ones read: the error once learning has converged

@@ -39,7 +39,17 @@ ablation and in ``tests/test_commission.py``):
 3. **Feedforward**: the model's compensator (its exact or numerical inverse), fed the
    reference ``delay`` samples ahead (the reference is known in advance; this cancels the
    sensor's delay). Every run starts with a lead-in: the desired displacement ramps from rest to
-   the reference's first value slowly enough that the commands stay inside the step limit. With
+   the reference's first value slowly enough that the commands stay inside the step limit. From
+   a rest above the bottom of the range (a bipolar range, or one that excludes 0 V) the command
+   first goes down to the bottom (at least 0.25 s), as the identification run does, and the
+   feedforward follows that through the model: going to the bottom wipes out the memory of the
+   hysterons below the rest, in the stage whatever state its reset left, and in the model
+   whatever state it assumes at rest (demagnetised), which the fit never checked, since the
+   identification run leaves rest for the bottom first. (A Krasnosel'skii-Pokrovskii stage with
+   hysterons over 0..180 V on a -30..150 V amplifier: feedforward 1.92 / 2.06 / 2.15 % e_max at
+   1 / 3 / 5 Hz straight from rest, the model's hysterons below 0 V left demagnetised; 0.69 /
+   0.56 / 0.61 % via the bottom; the zoo's and the census's bipolar stages moved by 0.11 % at
+   most, either way.) With
    ``commission(..., conditioning=True)`` (or per run ``track(..., conditioning=True)``) a
    conditioning sweep comes first (:func:`conditioning_sweep`: from rest to the top of the range
    and the bottom, then a rise to the first target, at least 0.25 s per leg); it wipes out the
@@ -313,12 +323,13 @@ def commissioning_excitation(dt: float, u_range: tuple[float, float] = (0.0, 100
     return np.concatenate([head, tail, back])
 
 
-def conditioning_sweep(limits: CommandLimits, dt: float, leg_s: float = 0.25) -> FloatArray:
+def conditioning_sweep(limits: CommandLimits, dt: float, leg_s: float = 0.25, *, top: bool = True) -> FloatArray:
     """The conditioning sweep's command (V): from rest to the top of the range and down to the
     bottom, raised-cosine legs of at least ``leg_s`` seconds each, inside the step limit (module
-    docstring, step 3). It wipes out a hysteresis' memory of whatever came before."""
+    docstring, step 3). It wipes out a hysteresis' memory of whatever came before. With
+    ``top=False`` only down to the bottom (what every run's lead-in does from a rest above it)."""
     out, last = [np.array([limits.rest])], limits.rest
-    for end in (limits.high, limits.low):
+    for end in ((limits.high, limits.low) if top else (limits.low,)):
         if end == last:
             continue
         n = max(limits.ramp_length(end - last, dt), int(math.ceil(leg_s / dt)))
@@ -663,12 +674,17 @@ class CommissionedController:
 
     def _lead_in(self, ff: Compensator, limits: CommandLimits, y_to: float, conditioning: bool) -> tuple[FloatArray, FloatArray]:
         """Desired µm and commands from rest to ``y_to``: through the conditioning sweep (the
-        model's output along it, from its initial state) when ``conditioning``, else straight."""
+        model's output along it, from its initial state) when ``conditioning``; else from a rest
+        above the bottom of the range down to the bottom first (module docstring, step 3), else
+        straight."""
         dt = self.plant.dt
-        if not conditioning:
-            return lead_in_from_rest(ff, self.model, y_to, limits, dt)
-        return lead_in_after(ff, self.model, self.conditioning_command(), y_to, limits, dt,
-                             rise_s=self.CONDITIONING_LEG_S)
+        if conditioning:
+            return lead_in_after(ff, self.model, self.conditioning_command(), y_to, limits, dt,
+                                 rise_s=self.CONDITIONING_LEG_S)
+        if limits.rest > limits.low + 1e-9 * limits.span:
+            return lead_in_after(ff, self.model, conditioning_sweep(limits, dt, self.CONDITIONING_LEG_S, top=False),
+                                 y_to, limits, dt, rise_s=self.CONDITIONING_LEG_S)
+        return lead_in_from_rest(ff, self.model, y_to, limits, dt)
 
     def track(self, reference: Any, *, feedback: bool | None = None, learning: bool = True,
               period: int | None = None, label: str = "", max_plays: int | None = None,
