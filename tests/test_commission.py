@@ -5,6 +5,8 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import piezohyst as ph
 from piezohyst.cli import main
@@ -335,6 +337,20 @@ def test_a_reference_faster_than_the_step_limit_is_named_as_the_cause_of_a_wound
     assert ctl.track(ph.sinusoid(3.0, 6, a, b, stage.dt), learning=False).e_max_percent < 1.0
     with pytest.raises(ph.UnstableLoopError, match="more than the step limit lets through.*Slow the reference"):
         ctl.track(ph.sinusoid(5.0, 6, a, b, stage.dt), learning=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-100.0, 100.0), min_size=1, max_size=60), st.floats(0.01, 50.0))
+def test_a_rate_limited_command_never_steps_further_and_passes_what_is_within(xs, step):
+    from piezohyst.plant import rate_limited
+
+    x = np.array(xs)
+    out = rate_limited(x, step)
+    assert out[0] == x[0]
+    assert np.all(np.abs(np.diff(out)) <= step * (1 + 1e-12))
+    # a signal whose every step is within the limit is delivered as sent
+    slow = x[0] + np.cumsum(np.clip(np.diff(x, prepend=x[0]), -step, step))
+    np.testing.assert_allclose(rate_limited(slow, step), slow, rtol=0, atol=1e-9)
 
 
 def test_followed_step_finds_a_slew_and_nothing_where_the_amplifier_follows():
