@@ -259,6 +259,19 @@ def test_other_kinds_go_through_fit_model_and_fit_bouc_wen(tmp_path):
     assert bw["document"]["kind"] == "bouc-wen" and bw["document"]["extra"]["fleet"]["options"]["method"] == "pso"
 
 
+def test_a_record_fitted_for_no_file_builds_no_document(tmp_path):
+    # a batch without ``out`` writes no model files: its workers neither build nor send them
+    files = write_simulated_batch(tmp_path, 1, seed=5, fs=200.0, cycles=3)
+    full = identify_record(files[0])
+    bare = identify_record(files[0], document=False)
+    assert full["document"] is not None and bare["document"] is None
+    assert bare["row"]["status"] == "ok"
+    timed = ("elapsed_s", "fit_time_s")
+    for k, v in full["row"].items():
+        if k not in timed:
+            assert bare["row"][k] == v or (v != v and bare["row"][k] != bare["row"][k]), k  # (NaN is NaN)
+
+
 def test_find_records_folders_globs_and_unique_names(tmp_path):
     for lot in ("lot1", "lot2"):
         (tmp_path / lot).mkdir()

@@ -404,7 +404,7 @@ def _loop_row(u: Any, y: Any) -> tuple[dict[str, Any], list[str]]:
 
 
 def identify_record(path: str | os.PathLike[str], options: FitOptions | None = None, *,
-                    record: str | None = None, single_thread: bool = False) -> dict[str, Any]:
+                    record: str | None = None, single_thread: bool = False, document: bool = True) -> dict[str, Any]:
     """Load one record, identify it and measure its loop: what each task of the fleet runs.
 
     Never raises for a bad record: a file that cannot be read or fitted gives a row with
@@ -420,6 +420,9 @@ def identify_record(path: str | os.PathLike[str], options: FitOptions | None = N
         The record's name in the row (default: the file's stem).
     single_thread : bool
         Run numba's parallel regions on one thread (on a cluster's workers).
+    document : bool
+        Build the model file's document (``False`` where no file is written: a batch without
+        ``out``, whose workers then neither build nor send it).
 
     Returns
     -------
@@ -458,7 +461,8 @@ def identify_record(path: str | os.PathLike[str], options: FitOptions | None = N
                    holdout_percent_of_span=(float(hold["percent_of_span"]) if hold.get("percent_of_span")
                                             is not None else float("nan")),
                    n_warnings=len(said), warnings=" | ".join(said), fit_time_s=float(fit.time_s))
-        doc = model_to_dict(fit.model, fit=fit, dataset=ds)
+        if document:
+            doc = model_to_dict(fit.model, fit=fit, dataset=ds)
     except Exception as exc:  # noqa: BLE001 - one bad record is a row, never a failed batch
         row.update(status="error", error=f"{type(exc).__name__}: {exc}")
     row["elapsed_s"] = time.perf_counter() - t0
@@ -650,14 +654,16 @@ def _describe(client: Any) -> str:
         return "a Dask cluster"
 
 
-def _cluster_task(path: str, options: FitOptions, record: str) -> dict[str, Any]:
+def _cluster_task(path: str, options: FitOptions, record: str, document: bool = True) -> dict[str, Any]:
     """What a worker runs for one record: :func:`identify_record` on one numba thread."""
-    return identify_record(path, options, record=record, single_thread=True)
+    return identify_record(path, options, record=record, single_thread=True, document=document)
 
 
-def _cluster_group(paths: list[str], options: FitOptions, records: list[str]) -> list[dict[str, Any]]:
+def _cluster_group(paths: list[str], options: FitOptions, records: list[str],
+                   document: bool = True) -> list[dict[str, Any]]:
     """What a worker runs for a group of quick records: :func:`identify_record` for each, in turn."""
-    return [identify_record(p, options, record=r, single_thread=True) for p, r in zip(paths, records)]
+    return [identify_record(p, options, record=r, single_thread=True, document=document)
+            for p, r in zip(paths, records)]
 
 
 #: Work a task should carry, in seconds. distributed spends about a millisecond of scheduler,
@@ -715,7 +721,7 @@ FETCH_EVERY_S = 0.5
 
 
 def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
-                   done: Callable[[str, dict[str, Any]], None]) -> None:
+                   done: Callable[[str, dict[str, Any]], None], document: bool = True) -> None:
     """One task per record, or per group of records when a record is quick; gathered as they finish.
 
     The first records (two per worker, at most) go out one per task; what the first of them to
@@ -738,7 +744,7 @@ def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
     probe, rest = jobs[:n_probe], jobs[n_probe:]
     keys = [f"piezohyst-fleet-{token}-{i}-{name}" for i, (name, _) in enumerate(probe)]
     futures = client.map(_cluster_task, [str(path) for _, path in probe], [opts] * len(probe),
-                         [name for name, _ in probe], pure=False, key=keys)
+                         [name for name, _ in probe], [document] * len(probe), pure=False, key=keys)
     #: future key -> (future, the records it carries)
     pending: dict[str, tuple[Any, list[tuple[str, Path]]]] = {
         fut.key: (fut, [job]) for fut, job in zip(futures, probe)}
@@ -756,10 +762,10 @@ def _run_on_client(client: Any, jobs: list[tuple[str, Path]], opts: FitOptions,
         keys = [f"piezohyst-fleet-{token}-{i}-{g[0][0]}-x{len(g)}" for i, g in enumerate(groups, n_probe)]
         if size == 1:
             futs = client.map(_cluster_task, [str(g[0][1]) for g in groups], [opts] * len(groups),
-                              [g[0][0] for g in groups], pure=False, key=keys)
+                              [g[0][0] for g in groups], [document] * len(groups), pure=False, key=keys)
         else:
             futs = client.map(_cluster_group, [[str(p) for _, p in g] for g in groups], [opts] * len(groups),
-                              [[n for n, _ in g] for g in groups], pure=False, key=keys)
+                              [[n for n, _ in g] for g in groups], [document] * len(groups), pure=False, key=keys)
         pending.update({fut.key: (fut, g) for fut, g in zip(futs, groups)})
         queue.update(futs)
         rest.clear()
@@ -934,9 +940,9 @@ def identify_many(
         with _Progress(progress, len(jobs), where) as bar:
             if client == "serial" or not jobs:
                 for name, path in jobs:
-                    done(name, identify_record(path, opts, record=name))
+                    done(name, identify_record(path, opts, record=name, document=models_dir is not None))
             else:
-                _run_on_client(own if own is not None else client, jobs, opts, done)
+                _run_on_client(own if own is not None else client, jobs, opts, done, document=models_dir is not None)
     finally:
         if own is not None:
             cluster = own.cluster if client is None else None
