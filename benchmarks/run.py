@@ -1036,6 +1036,8 @@ pr = ph.Preisach(lo=0.0, hi=100.0, weights=np.full(ph.models.preisach.grid_size(
 _try(lambda: pr.compensator(None).command(pr.simulate(u)[:200]))
 _try(lambda: pr.stepper().step(1.0))
 _try(lambda: pr.hysteron_outputs(u))
+from piezohyst.plant import rate_limited
+_try(lambda: rate_limited(u, 0.5))                                          # commission's slew estimate
 _try(lambda: ph.fit_pi(u, yp, delay="auto"))                                   # streamed Gram, every delay
 _try(lambda: ph.track(rig, ph.sinusoid(5.0, 1, 0.3, 2.2, rig.dt), feedforward=ph.InversePIFeedforward(pv.pi_model()),
                       feedback=ph.PID(ki=100.0, dt=rig.dt)))                    # the paper's loop, compiled
@@ -1087,7 +1089,8 @@ def compile_cost(b: Bench) -> None:
           ratio_is="first / second", target=">= 5x (the cache works)", met=ratio >= 5,
           note=(f"import and one call of every public path (simulate both ways, operator_outputs, pi_gram, steppers, "
                 f"rig, fit_bouc_wen, fit_rate_pi, feedforwards, structural Bouc-Wen and its sensitivities, fit_pi "
-                f"by least squares, by PSO and at every delay, Preisach simulate, inverse and hysterons, fit_model of "
+                f"by least squares, by PSO and at every delay, Preisach simulate, inverse and hysterons, the slew "
+                f"estimate's rate limiter, fit_model of "
                 f"Preisach, Bouc-Wen hysteresis and generalized Duhem models (and a Duhem inverse), the paper's PID loop, commission and track on the "
                 f"VirtualRig) in a fresh process with "
                 f"NUMBA_CACHE_DIR at an empty temporary directory; {len(kernels) - len(missed)} of {len(kernels)} "
