@@ -331,7 +331,7 @@ def test_a_reference_faster_than_the_step_limit_is_named_as_the_cause_of_a_wound
     stage = Stage("Maxwell-slip behind an 800 V/s amplifier", _SlewLimited(AsymmetricMaxwellSlip(100.0, 20.0), 800.0, 1e-4),
                   1e-4, (0.0, 100.0), tau_amp=1e-4, kv=((0.05, 0.02),), fn_hz=2000.0, zeta=0.05, noise_um=0.005,
                   delay_samples=1, seed=31)
-    with pytest.warns(AmplifierSlewWarning, match="hold-out error.*Commissioning again"):
+    with pytest.warns(AmplifierSlewWarning, match="fits its identification run best.*Commissioning again"):
         ctl = ph.commission(stage)
     a, b = steady_range(stage)
     assert ctl.track(ph.sinusoid(3.0, 6, a, b, stage.dt), learning=False).e_max_percent < 1.0
@@ -367,6 +367,9 @@ def test_followed_step_finds_a_slew_and_nothing_where_the_amplifier_follows():
     got = followed_step(u, y_slow)
     assert got is not None and 0.09 <= got["max_step"] <= 0.11, got
     assert got["rmse_slewed"] < 0.5 * got["rmse_as_sent"]
+    # a record no P-I model fits (the output falls as the input rises; for a Dahl stage, only once
+    # the commands are slowed far enough) is no slew, not an error
+    assert followed_step(u, -y_fast) is None
 
 
 @pytest.mark.slow
@@ -445,3 +448,25 @@ def test_a_run_from_a_rest_mid_range_starts_from_the_bottom_as_the_identificatio
         run = ctl.track(ph.sinusoid(f, 3, a, b, stage.dt), feedback=False, learning=False)
         assert run.e_max_percent < 1.0, (f, run.e_max_percent)
         assert run.info["safety"]["clipped"] == 0
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::piezohyst.ClippingWarning")
+def test_a_slow_amplifier_behind_a_lag_is_found_without_any_other_sign():
+    """Behind 1500 V/s and a 6 ms amplifier lag (a random census of stages outside the zoo) the
+    input lag absorbs part of the slewing: no rate warning, a hold-out error of a few % of span,
+    so the slew was never looked for and the feedforward missed by 4.1 % at 1 Hz. It is looked
+    for on every commissioning now (0.1-0.3 s on the rig, zoo and census stages, which have none)."""
+    from piezohyst.commissioning import AmplifierSlewWarning
+
+    from .plants.zoo import AsymmetricBoucWen, Stage
+    from .test_zoo import steady_range
+
+    stage = Stage("asymmetric Bouc-Wen behind 1500 V/s and a 6 ms amplifier lag",
+                  _SlewLimited(AsymmetricBoucWen(100.0, 20.0), 1500.0, 1e-4), 1e-4, (0.0, 100.0), tau_amp=6e-3,
+                  kv=((0.05, 0.05),), fn_hz=2662.0, zeta=0.05, noise_um=0.004, delay_samples=2, seed=8)
+    with pytest.warns(AmplifierSlewWarning, match="Commissioning again"):
+        ctl = ph.commission(stage, tune=False)
+    assert 1200 <= ctl.info["slew_estimate"]["max_step"] / stage.dt <= 1700
+    a, b = steady_range(stage)
+    assert ctl.track(ph.sinusoid(1.0, 3, a, b, stage.dt), feedback=False, learning=False).e_max_percent < 1.5

@@ -1071,7 +1071,7 @@ class AmplifierSlewWarning(UserWarning):
 
 
 #: The slew estimate (:func:`followed_step`): the steps tried fall from the record's largest by
-#: factors of sqrt(2) to a 64th of it, then by an eighth of an octave around the best; a step is
+#: octaves to a 64th of it, then by half, quarter and eighth octaves around the best; a step is
 #: taken when a P-I model of the record slowed to it fits with at most this share of the RMS
 #: error of the record as sent (a stage behind a 1,500 V/s amplifier on 0-100 V, 10 kHz: 5.8 % of
 #: the span as sent, 1.2 % slowed to 1,388 V/s; the zoo's stages, whose amplifiers follow,
@@ -1102,34 +1102,30 @@ def followed_step(u: Any, y: Any, *, warmup: int = 0, max_delay: int = 20) -> di
 
     def rmse(step: float) -> float:
         v = rate_limited(u, step)[warmup:] if step < largest else u[warmup:]
-        return float(fit_pi(v, y[warmup:], 20, delay="auto", max_auto_delay=max_delay).rmse)
+        try:
+            return float(fit_pi(v, y[warmup:], 20, delay="auto", max_auto_delay=max_delay).rmse)
+        except ValueError:  # slowed so far that the output no longer rises with it: no fit at all
+            return math.inf
 
     tried = {largest: rmse(largest)}
-    for k in range(1, 13):
-        tried[largest * 2.0 ** (-k / 2)] = rmse(largest * 2.0 ** (-k / 2))
+    for k in range(1, 7):  # octaves down to a 64th
+        tried[largest * 2.0 ** -k] = rmse(largest * 2.0 ** -k)
     best = min(tried, key=tried.__getitem__)
-    for k in (-3, -2, -1, 1, 2, 3):
+    for k in (-4, -2, -1, 1, 2, 4):  # then half, quarter and eighth octaves around the best
         s = best * 2.0 ** (k / 8)
         if s < largest:
             tried[s] = rmse(s)
     best = min(tried, key=tried.__getitem__)
-    if not tried[best] <= SLEW_FIT_RATIO * tried[largest]:
+    if not math.isfinite(tried[largest]) or not tried[best] <= SLEW_FIT_RATIO * tried[largest]:
         return None
     return {"max_step": best, "rmse_as_sent": tried[largest], "rmse_slewed": tried[best],
             "tried": sorted(tried.items(), reverse=True)}
 
 
-#: The hold-out error (% of the output's span) of commissioning's fit above which it looks for an
-#: amplifier slower than the excitation even without the rate warning: an amplifier far slower
-#: smears the whole record, not only its fastest tenth (a stage behind 800 V/s on 0-100 V:
-#: 11.5 % of the span, the residual 17 % over the fastest tenth and 8 % over the slower half).
-SLEW_SEARCH_HOLDOUT_PERCENT = 5.0
-
-
 def _slower_amplifier(plant: Any, call: dict[str, Any], ds: Dataset, warmup: int, limits: CommandLimits,
                       said: str, say: Callable[[str], None]) -> "CommissionedController | None":
     """Where the identification run looks like an amplifier slower than the excitation (``said``:
-    what showed it), its slew (:func:`followed_step`) and ``commission`` again with a step limit
+    what else showed it, if anything), its slew (:func:`followed_step`) and ``commission`` again with a step limit
     it follows, so that every command (the excitation's, the tuning's, tracking's) reaches the
     stage as sent; None where the caller set the step limit or the excitation, where this is
     the second time, or where no slew explains the run."""
@@ -1141,7 +1137,8 @@ def _slower_amplifier(plant: Any, call: dict[str, Any], ds: Dataset, warmup: int
         return None
     dt = float(ds.dt)
     fraction = slew["max_step"] / limits.span
-    warnings.warn(f"commissioning {type(plant).__name__}: {said}. A P-I model fits the run best with the commands "
+    warnings.warn(f"commissioning {type(plant).__name__}: {said + '. ' if said else ''}A P-I model fits its "
+                  f"identification run best with the commands "
                   f"slowed to {slew['max_step']:.3g} V per sample ({slew['max_step'] / dt:.4g} V/s; RMS error "
                   f"{slew['rmse_as_sent']:.3g} -> {slew['rmse_slewed']:.3g} um): the amplifier does not follow "
                   f"faster commands (a slew-rate or current limit). Commissioning again with max_step_fraction="
@@ -1360,18 +1357,18 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     else:
         fit = fit_model(ds.u, ds.y, dt, "auto", kinds=kinds, n=n, progress=progress, warmup=warmup)
     by_rate = fit.info.get("residual_by_rate") or {}
-    holdout_pct = (fit.info.get("holdout") or {}).get("percent_of_span")
-    poor = holdout_pct is not None and holdout_pct > SLEW_SEARCH_HOLDOUT_PERCENT
-    if by_rate.get("amplifier_may_not_follow") or poor:
-        said = (f"{by_rate['warning']} (the excitation's largest step was "
-                f"{float(np.max(np.abs(np.diff(ds.u)))):.3g} V per sample, max_step_fraction="
-                f"{limits.max_step / limits.span:.3g})" if by_rate.get("amplifier_may_not_follow") else
-                f"the model's hold-out error is {holdout_pct:.3g} % of the span")
-        slower = _slower_amplifier(plant, call, ds, warmup, limits, said, say)
-        if slower is not None:
-            return slower
-        if by_rate.get("amplifier_may_not_follow"):
-            warnings.warn(f"commissioning {type(plant).__name__}: {said}", AmplifierSlewWarning, stacklevel=2)
+    said = (f"{by_rate['warning']} (the excitation's largest step was {float(np.max(np.abs(np.diff(ds.u)))):.3g} V per "
+            f"sample, max_step_fraction={limits.max_step / limits.span:.3g})"
+            if by_rate.get("amplifier_may_not_follow") else "")
+    # an amplifier slower than the excitation, looked for on every run whose step limit the caller
+    # left to the default: where an amplifier lag hides it, neither the rate warning nor the
+    # hold-out error shows it (behind 1500-3000 V/s with amplifier lags of 0.5-6 ms: no warning,
+    # hold-out 1-3 % of span, feedforward 2.7-4.1 % e_max at 1 Hz)
+    slower = _slower_amplifier(plant, call, ds, warmup, limits, said, say)
+    if slower is not None:
+        return slower
+    if said:
+        warnings.warn(f"commissioning {type(plant).__name__}: {said}", AmplifierSlewWarning, stacklevel=2)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain,
                                  limits=limits, max_plays=max_plays, conditioning=bool(conditioning))
     tune_counts = None
