@@ -1088,11 +1088,8 @@ def _turns(x: FloatArray, tol: float) -> int:
 def _input_lag_factor(model: Any) -> float:
     """The model's input lag factor ``b`` (:attr:`~piezohyst.models.rate.RateDependent.input_lag_factor`),
     also inside an asymmetric P-I model; 0 without an input lag."""
-    for m in (model, getattr(model, "inner", None)):
-        b = getattr(m, "input_lag_factor", None)
-        if b is not None:
-            return float(b)
-    return 0.0
+    inner = getattr(model, "inner", model)  # (as linear._instantaneous_min_slope unwraps it)
+    return float(getattr(inner, "input_lag_factor", 0.0))
 
 
 def _chatters(model: Any, dt: float, y: FloatArray, ranges: SearchRanges) -> bool:
