@@ -1077,15 +1077,21 @@ class AmplifierSlewWarning(UserWarning):
 #: the span as sent, 1.2 % slowed to 1,388 V/s; the zoo's stages, whose amplifiers follow,
 #: 0.77-2.26 % as sent and nothing better slowed).
 SLEW_FIT_RATIO = 0.5
+#: ... or this share where the fit already misses most where the excitation moves fastest (the
+#: rate warning: independent evidence of an amplifier that does not follow; a saturated P-I stage
+#: at 2 kHz behind 1500 V/s: 0.85 of the error slowed to 1414 V/s, feedforward 4.1 / 7.8 % at
+#: 1 / 5 Hz as sent, 0.43 / 2.8 % commissioned within it)
+SLEW_FIT_RATIO_FLAGGED = 0.9
 _slowing = threading.local()
 
 
-def followed_step(u: Any, y: Any, *, warmup: int = 0, max_delay: int = 20) -> dict[str, Any] | None:
+def followed_step(u: Any, y: Any, *, warmup: int = 0, max_delay: int = 20,
+                  ratio: float = SLEW_FIT_RATIO) -> dict[str, Any] | None:
     """The largest command step per sample an amplifier seems to follow, from a record of commands
     ``u`` and displacements ``y``: the step ``s`` whose slewed commands
     (:func:`~piezohyst.plant.rate_limited`) a 20-operator P-I model (delay chosen on held-out data,
     up to ``max_delay``) fits best, the samples after ``warmup`` fitted. None when no step fits
-    with at most :data:`SLEW_FIT_RATIO` of the error of the commands as sent (the amplifier
+    with at most ``ratio`` (default :data:`SLEW_FIT_RATIO`) of the error of the commands as sent (the amplifier
     follows them, or what the model misses is something else).
 
     Returns ``{"max_step": s, "rmse_as_sent": ..., "rmse_slewed": ..., "tried": [(s, rmse), ...]}``.
@@ -1116,23 +1122,24 @@ def followed_step(u: Any, y: Any, *, warmup: int = 0, max_delay: int = 20) -> di
         if s < largest:
             tried[s] = rmse(s)
     best = min(tried, key=tried.__getitem__)
-    if not math.isfinite(tried[largest]) or not tried[best] <= SLEW_FIT_RATIO * tried[largest]:
+    if not math.isfinite(tried[largest]) or not tried[best] <= ratio * tried[largest]:
         return None
     return {"max_step": best, "rmse_as_sent": tried[largest], "rmse_slewed": tried[best],
             "tried": sorted(tried.items(), reverse=True)}
 
 
 def _slower_amplifier(plant: Any, call: dict[str, Any], ds: Dataset, warmup: int, limits: CommandLimits,
-                      said: str, say: Callable[[str], None]) -> "CommissionedController | None":
+                      said: str, say: Callable[[str], None], *, flagged: bool = False) -> "CommissionedController | None":
     """Where the identification run looks like an amplifier slower than the excitation (``said``:
-    what else showed it, if anything), its slew (:func:`followed_step`) and ``commission`` again with a step limit
+    what else showed it, if anything; ``flagged``: the fit's rate warning, which lowers the bar to
+    :data:`SLEW_FIT_RATIO_FLAGGED`), its slew (:func:`followed_step`) and ``commission`` again with a step limit
     it follows, so that every command (the excitation's, the tuning's, tracking's) reaches the
     stage as sent; None where the caller set the step limit or the excitation, where this is
     the second time, or where no slew explains the run."""
     if call["max_step_fraction"] is not None or call["excitation"] is not None or getattr(_slowing, "active", False):
         return None
     say("the amplifier's slew rate, from the identification run")
-    slew = followed_step(ds.u, ds.y, warmup=warmup)
+    slew = followed_step(ds.u, ds.y, warmup=warmup, ratio=SLEW_FIT_RATIO_FLAGGED if flagged else SLEW_FIT_RATIO)
     if slew is None:
         return None
     dt = float(ds.dt)
@@ -1364,7 +1371,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     # left to the default: where an amplifier lag hides it, neither the rate warning nor the
     # hold-out error shows it (behind 1500-3000 V/s with amplifier lags of 0.5-6 ms: no warning,
     # hold-out 1-3 % of span, feedforward 2.7-4.1 % e_max at 1 Hz)
-    slower = _slower_amplifier(plant, call, ds, warmup, limits, said, say)
+    slower = _slower_amplifier(plant, call, ds, warmup, limits, said, say,
+                               flagged=bool(by_rate.get("amplifier_may_not_follow")))
     if slower is not None:
         return slower
     if said:
