@@ -1151,18 +1151,9 @@ def _slower_amplifier(plant: Any, call: dict[str, Any], ds: Dataset, warmup: int
                   f"faster commands (a slew-rate or current limit). Commissioning again with max_step_fraction="
                   f"{fraction:.3g}, the controller's step limit from now on (declare the amplifier's, if you know "
                   "it, to skip this)", AmplifierSlewWarning, stacklevel=3)
-    ctl = _commission_slower(plant, call, fraction)
+    ctl = _commission_again(plant, call, _slowing, max_step_fraction=fraction)  # (it never slows again)
     ctl.info["slew_estimate"] = {k: v for k, v in slew.items() if k != "tried"}
     return ctl
-
-
-def _commission_slower(plant: Any, call: dict[str, Any], fraction: float) -> "CommissionedController":
-    """``commission`` again with ``max_step_fraction=fraction``, once (it never slows again)."""
-    _slowing.active = True
-    try:
-        return commission(plant, **{**call, "max_step_fraction": fraction})
-    finally:
-        _slowing.active = False
 
 
 #: how far inside the input at which a non-monotone stage follows the command again the range is
@@ -1212,11 +1203,17 @@ def _narrowed_to_moving(dead: DeadRange, limits: CommandLimits) -> tuple[float, 
 
 def _commission_within(plant: Any, call: dict[str, Any], new_lo: float, new_hi: float) -> "CommissionedController":
     """``commission`` again with ``u_range=(new_lo, new_hi)``, once (a narrowing never narrows again)."""
-    _narrowing.active = True
+    return _commission_again(plant, call, _narrowing, u_range=(new_lo, new_hi))
+
+
+def _commission_again(plant: Any, call: dict[str, Any], once: threading.local, **changes: Any) -> "CommissionedController":
+    """``commission`` again with the arguments ``call`` as ``changes`` changes them, with
+    ``once.active`` set meanwhile (so that what asked for it does not ask again)."""
+    once.active = True
     try:
-        return commission(plant, **{**call, "u_range": (new_lo, new_hi)})
+        return commission(plant, **{**call, **changes})
     finally:
-        _narrowing.active = False
+        once.active = False
 
 
 def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None = None, n: int | None = None,

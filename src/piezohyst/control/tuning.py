@@ -613,8 +613,7 @@ def tune_integral_safely(
         # model's phase reaches -180 degrees
         n_p = int(min(max(math.ceil(8.0 / (ki * dt)), math.ceil(10.0 / (f_pc * dt)), 100),
                       max(round(0.25 / dt), 100)))
-        settle_anyway = False  # the second attempt of a trial stopped by an unsettled hold
-        while True:
+        for settle_anyway in (False, True):  # True: the second attempt of a trial stopped by an unsettled hold
             answers = []
             ringing: list[float] = []  # per probe segment: the error's sample-to-sample RMS, second half
             aborted = False
@@ -648,7 +647,6 @@ def tune_integral_safely(
                     # slope after their reversals, and that may be what stopped them (a viscous
                     # Maxwell-slip stage: 0.3-0.4 um took 11 V against a 1.2 V probe, and every
                     # trial was stopped: no feedback at all): once more, the hold settled first
-                    settle_anyway = True
                     pid.ki = ki
                     continue
                 overshoot, peak = math.inf, math.nan
