@@ -1071,30 +1071,33 @@ class AmplifierSlewWarning(UserWarning):
 
 
 #: The slew estimate (:func:`followed_step`): the steps tried fall from the record's largest by
-#: octaves to a 64th of it, then by half, quarter and eighth octaves around the best; a step is
-#: taken when a P-I model of the record slowed to it fits with at most this share of the RMS
-#: error of the record as sent (a stage behind a 1,500 V/s amplifier on 0-100 V, 10 kHz: 5.8 % of
-#: the span as sent, 1.2 % slowed to 1,388 V/s; the zoo's stages, whose amplifiers follow,
-#: 0.77-2.26 % as sent and nothing better slowed).
-SLEW_FIT_RATIO = 0.5
-#: ... or this share where the fit already misses most where the excitation moves fastest (the
-#: rate warning: independent evidence of an amplifier that does not follow; a saturated P-I stage
-#: at 2 kHz behind 1500 V/s: 0.85 of the error slowed to 1497 V/s, feedforward 4.1 / 7.8 % at
-#: 1 / 5 Hz as sent, 0.42 / 1.5 % commissioned within it)
-SLEW_FIT_RATIO_FLAGGED = 0.9
+#: octaves to a 64th of it, then by half, quarter and eighth octaves around the best, then placed
+#: between its neighbours; a step is taken when a P-I model of the record slowed to it fits with
+#: at most this share of the RMS error of the record as sent ...
+SLEW_FIT_RATIO = 0.9
+#: ... and of the record passed through the first-order lag that fits best
+#: (:data:`SLEW_LAG_RATIO`): an amplifier lag also makes slowed commands fit better (a lag of
+#: 15 ms: 0.65-0.71 of the error as sent), but a lag itself fits far better still (0.11-0.20),
+#: where behind a slew limit the lag fits worse than the slew (slowed / lagged 0.10-0.41 behind
+#: 400-2000 V/s, 0.58-0.84 with an amplifier lag or a resonance of its own; without a slew limit
+#: 1.0-7.8 on the rig, the zoo, the census and stages behind 3-30 ms lags)
+SLEW_LAG_RATIO = 0.9
 _slowing = threading.local()
 
 
 def followed_step(u: Any, y: Any, *, warmup: int = 0, max_delay: int = 20,
-                  ratio: float = SLEW_FIT_RATIO) -> dict[str, Any] | None:
+                  ratio: float = SLEW_FIT_RATIO, lag_ratio: float = SLEW_LAG_RATIO) -> dict[str, Any] | None:
     """The largest command step per sample an amplifier seems to follow, from a record of commands
     ``u`` and displacements ``y``: the step ``s`` whose slewed commands
     (:func:`~piezohyst.plant.rate_limited`) a 20-operator P-I model (delay chosen on held-out data,
     up to ``max_delay``) fits best, the samples after ``warmup`` fitted. None when no step fits
     with at most ``ratio`` (default :data:`SLEW_FIT_RATIO`) of the error of the commands as sent (the amplifier
-    follows them, or what the model misses is something else).
+    follows them, or what the model misses is something else), or where the commands passed through
+    a first-order lag fit about as well (``lag_ratio``, :data:`SLEW_LAG_RATIO`): an amplifier that
+    lags, not one that slews.
 
-    Returns ``{"max_step": s, "rmse_as_sent": ..., "rmse_slewed": ..., "tried": [(s, rmse), ...]}``.
+    Returns ``{"max_step": s, "rmse_as_sent": ..., "rmse_slewed": ..., "input_lag_samples": tau,
+    "rmse_input_lag": ..., "tried": [(s, rmse), ...]}``.
     """
     from .identify import fit_pi
     from .plant import rate_limited
@@ -1125,8 +1128,40 @@ def followed_step(u: Any, y: Any, *, warmup: int = 0, max_delay: int = 20,
     if not math.isfinite(tried[largest]) or not tried[best] <= ratio * tried[largest]:
         return None
     best = _refined_step(rmse, tried, best, largest)
+    tau, lagged = _best_input_lag(u, y, warmup, max_delay)
+    if not tried[best] <= lag_ratio * lagged:
+        return None
     return {"max_step": best, "rmse_as_sent": tried[largest], "rmse_slewed": tried[best],
-            "tried": sorted(tried.items(), reverse=True)}
+            "input_lag_samples": tau, "rmse_input_lag": lagged, "tried": sorted(tried.items(), reverse=True)}
+
+
+def _best_input_lag(u: FloatArray, y: FloatArray, warmup: int, max_delay: int) -> tuple[float, float]:
+    """The time constant (samples) of the first-order lag, from half a sample to a twentieth of
+    the record, through which a 20-operator P-I model fits ``u`` to ``y`` best, and that fit's
+    RMS error: octaves, then bounded Brent between the best's neighbours."""
+    from scipy.optimize import minimize_scalar
+
+    from .identify import fit_pi
+    from .models.rate import first_order_lag
+
+    def rmse(x: float) -> float:
+        v = first_order_lag(u - u[0], math.exp(-1.0 / 2.0 ** x)) + u[0]  # from rest at the first command
+        try:
+            return float(fit_pi(v[warmup:], y[warmup:], 20, delay="auto", max_auto_delay=max_delay).rmse)
+        except ValueError:
+            return math.inf
+
+    grid = np.arange(-1.0, math.log2(max(u.size / 20.0, 1.0)) + 1e-9, 1.0)
+    if grid.size == 0:
+        return 0.0, math.inf
+    errors = [rmse(x) for x in grid]
+    i = int(np.argmin(errors))
+    if grid.size > 1:
+        got = minimize_scalar(rmse, bounds=(grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]),
+                              method="bounded", options={"xatol": 1.0 / 16})
+        if got.fun < errors[i]:
+            return float(2.0 ** got.x), float(got.fun)
+    return float(2.0 ** grid[i]), float(errors[i])
 
 
 #: how finely :func:`followed_step` places the step between its grid's neighbours (octaves): a
@@ -1158,17 +1193,16 @@ def _refined_step(rmse: Callable[[float], float], tried: dict[float, float], bes
 
 
 def _slower_amplifier(plant: Any, call: dict[str, Any], ds: Dataset, warmup: int, limits: CommandLimits,
-                      said: str, say: Callable[[str], None], *, flagged: bool = False) -> "CommissionedController | None":
+                      said: str, say: Callable[[str], None]) -> "CommissionedController | None":
     """Where the identification run looks like an amplifier slower than the excitation (``said``:
-    what else showed it, if anything; ``flagged``: the fit's rate warning, which lowers the bar to
-    :data:`SLEW_FIT_RATIO_FLAGGED`), its slew (:func:`followed_step`) and ``commission`` again with a step limit
+    what else showed it, if anything), its slew (:func:`followed_step`) and ``commission`` again with a step limit
     it follows, so that every command (the excitation's, the tuning's, tracking's) reaches the
     stage as sent; None where the caller set the step limit or the excitation, where this is
     the second time, or where no slew explains the run."""
     if call["max_step_fraction"] is not None or call["excitation"] is not None or getattr(_slowing, "active", False):
         return None
     say("the amplifier's slew rate, from the identification run")
-    slew = followed_step(ds.u, ds.y, warmup=warmup, ratio=SLEW_FIT_RATIO_FLAGGED if flagged else SLEW_FIT_RATIO)
+    slew = followed_step(ds.u, ds.y, warmup=warmup)
     if slew is None:
         return None
     dt = float(ds.dt)
@@ -1176,7 +1210,9 @@ def _slower_amplifier(plant: Any, call: dict[str, Any], ds: Dataset, warmup: int
     warnings.warn(f"commissioning {type(plant).__name__}: {said + '. ' if said else ''}A P-I model fits its "
                   f"identification run best with the commands "
                   f"slowed to {slew['max_step']:.3g} V per sample ({slew['max_step'] / dt:.4g} V/s; RMS error "
-                  f"{slew['rmse_as_sent']:.3g} -> {slew['rmse_slewed']:.3g} um): the amplifier does not follow "
+                  f"{slew['rmse_as_sent']:.3g} -> {slew['rmse_slewed']:.3g} um, against {slew['rmse_input_lag']:.3g} um "
+                  f"through the first-order lag that fits best, {slew['input_lag_samples'] * dt * 1e3:.3g} ms): the "
+                  "amplifier does not follow "
                   f"faster commands (a slew-rate or current limit). Commissioning again with max_step_fraction="
                   f"{fraction:.3g}, the controller's step limit from now on (declare the amplifier's, if you know "
                   "it, to skip this)", AmplifierSlewWarning, stacklevel=3)
@@ -1357,14 +1393,18 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
             f"mounted the other way round): make {type(plant).__name__}.step() return the displacement "
             "with the sign that rises with the command (multiply it by -1)")
     mono = monotone_range(ds.u[warmup:], ds.y[warmup:])
+    # an amplifier slower than the excitation, looked for on every run whose step limit the caller
+    # left to the default, before a model is fitted to the distorted run: where an amplifier lag
+    # hides it, neither the fit's rate warning nor its hold-out error shows it (behind 1500-3000 V/s
+    # with amplifier lags of 0.5-6 ms: no warning, hold-out 1-3 % of span, feedforward 2.7-4.1 %
+    # e_max at 1 Hz); far slower, it goes on moving the stage after the command has reversed, which
+    # looks like a stage that is not monotone (behind 400 V/s on 0-100 V it was refused with a
+    # range of 6 V to commission in)
+    slower = _slower_amplifier(plant, call, ds, warmup, limits, "" if mono.monotone else
+                               f"the run looks not monotone ({mono.describe(limits.low, limits.high)})", say)
+    if slower is not None:
+        return slower
     if not mono.monotone:
-        # an amplifier far slower than the excitation goes on moving the stage after the command
-        # has reversed: that looks like a stage that is not monotone (behind 400 V/s on 0-100 V
-        # it was refused with a range of 6 V to commission in)
-        slower = _slower_amplifier(plant, call, ds, warmup, limits,
-                                   f"the run looks not monotone ({mono.describe(limits.low, limits.high)})", say)
-        if slower is not None:
-            return slower
         return _commission_where_monotone(plant, call, mono, limits, excitation is not None)
     dead = dead_range(ds.u[warmup:], ds.y[warmup:])
     if dead.found:
@@ -1393,14 +1433,6 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     said = (f"{by_rate['warning']} (the excitation's largest step was {float(np.max(np.abs(np.diff(ds.u)))):.3g} V per "
             f"sample, max_step_fraction={limits.max_step / limits.span:.3g})"
             if by_rate.get("amplifier_may_not_follow") else "")
-    # an amplifier slower than the excitation, looked for on every run whose step limit the caller
-    # left to the default: where an amplifier lag hides it, neither the rate warning nor the
-    # hold-out error shows it (behind 1500-3000 V/s with amplifier lags of 0.5-6 ms: no warning,
-    # hold-out 1-3 % of span, feedforward 2.7-4.1 % e_max at 1 Hz)
-    slower = _slower_amplifier(plant, call, ds, warmup, limits, said, say,
-                               flagged=bool(by_rate.get("amplifier_may_not_follow")))
-    if slower is not None:
-        return slower
     if said:
         warnings.warn(f"commissioning {type(plant).__name__}: {said}", AmplifierSlewWarning, stacklevel=2)
     ctl = CommissionedController(plant=plant, fit=fit, tuning=None, identification=ds, learning_gain=learning_gain,
