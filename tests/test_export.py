@@ -69,6 +69,11 @@ def example_models():
         "preisach": pre,
         "rate-dependent (P-I)": rate_pi,
         "rate-dependent (Preisach)": ph.RateDependent(static=pre, taus=[0.005], lag_weights=[0.002], dt=DT),
+        # a long input lag whose lead's gain is limited (model selection sets it where the exact
+        # lead's steps are too large): the C code runs the same filter before the lead
+        "rate-dependent (P-I, lead limited)": ph.RateDependent(static=pi, taus=[0.002, 0.03, 0.4],
+                                                              lag_weights=[0.003, 0.0015, -0.0004], dt=DT,
+                                                              input_tau=4e-3, input_lead_gain=8.0),
         "asymmetric-pi": ph.AsymmetricPI(inner=pi, output_map=out_map),
         "asymmetric-pi (rate)": ph.AsymmetricPI(inner=rate_pi, output_map=out_map),
         "bouc-wen": ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072, gamma=0.02,

@@ -45,7 +45,10 @@ SCHEMA_NAME = "piezohyst.model"
 #: that holds what it carries (:func:`schema_version_for`): a model without an operating range is
 #: a version 2 file, which piezohyst 0.2 reads too. Version 4: the generalized Duhem kind (a
 #: version 3 reader would call it an unknown kind; it says "written by a newer piezohyst" instead).
-SCHEMA_VERSION = 4
+#: Version 5: a rate-dependent model may carry the limit of its compensator's input-lag lead
+#: (``input_lead_gain``); a reader that dropped it would send the exact lead's steps (dozens of
+#: times the reference's behind a long amplifier lag), so older readers refuse such a file.
+SCHEMA_VERSION = 5
 #: The schema version that introduced each kind after version 2 (a file holding one, at any depth,
 #: carries at least that version).
 KIND_SINCE = {"generalized-duhem": 4}
@@ -99,8 +102,9 @@ def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
 
 def schema_version_for(params: Any, kind: str | None = None) -> int:
     """The oldest schema version that holds ``params`` (a model's ``to_dict()``, of ``kind``): the
-    version that introduced a kind it holds (:data:`KIND_SINCE`, nested ones too), 3 where some
-    part carries an operating range (``v_range``), else 2."""
+    version that introduced a kind it holds (:data:`KIND_SINCE`, nested ones too), 5 where some
+    part limits its input-lag lead (``input_lead_gain``), 3 where some part carries an operating
+    range (``v_range``), else 2."""
     since = KIND_SINCE.get(kind, 2) if kind is not None else 2
     if isinstance(params, dict):
         nested = params.get("kind")
@@ -108,6 +112,8 @@ def schema_version_for(params: Any, kind: str | None = None) -> int:
             since = max(since, KIND_SINCE.get(nested, 2))
         if params.get("v_range") is not None:
             since = max(since, 3)
+        if params.get("input_lead_gain"):
+            since = max(since, 5)
         return max([since, *(schema_version_for(v) for v in params.values())])
     if isinstance(params, (list, tuple)):
         return max((schema_version_for(v) for v in params), default=2)

@@ -27,6 +27,19 @@ reports. A lag entered with the previous sample's state (as earlier versions did
 ``a_i - c_i (1 - a_i) / K`` as the pole of the inverse, outside the unit circle as soon as a fast
 lag's weight exceeds the slope after a reversal: the command then oscillates at the Nyquist
 frequency.
+
+**A long input lag's lead, limited.** The exact inverse of the input lag is a lead of gain
+``1 / (1 - b)``, about ``input_tau / dt``: at 20 kHz behind a 6.4 ms amplifier lag, 128. Each kink
+of the static inverse (at every reversal of the reference) becomes a step of the command dozens
+of times the reference's own. With ``input_lead_gain = G`` the lead acts on ``v`` passed through
+a first-order filter of time constant ``input_tau / G`` (factor ``f = exp(-G dt / input_tau)``)::
+
+    w(k) = f w(k-1) + (1 - f) v(k),     u(k) = (w(k) - b w(k-1)) / (1 - b)
+
+whose gain at high frequency is about G and 1 at low frequency: the stage receives ``w``, ``v``
+a fraction ``input_tau / G`` of a second late, in exchange for a command whose steps are at most
+about G times those of ``v``. ``G = 0`` (the default) is the exact inverse. Model selection
+(:mod:`piezohyst.identify.select`) sets G only where the exact lead's steps pass its bound.
 """
 
 from __future__ import annotations
@@ -69,14 +82,26 @@ def _lags_known(a: FloatArray, c: FloatArray, s: FloatArray) -> float:  # pragma
 
 
 @njit
+def _input_lead(v: float, b: float, v_prev: FloatArray) -> float:  # pragma: no cover - compiled
+    """The command for the stage input ``v``: the inverse of the input lag,
+    ``u = (w - b w_prev) / (1 - b)`` with ``w = f w_prev + (1 - f) v`` (module docstring;
+    ``v_prev = [w_prev, f]``; ``f = 0``: the exact inverse, ``w = v``)."""
+    if b == 0.0:
+        v_prev[0] = v
+        return v
+    f = v_prev[1]
+    w = v if f == 0.0 else f * v_prev[0] + (1.0 - f) * v
+    u = (w - b * v_prev[0]) / (1.0 - b)
+    v_prev[0] = w
+    return u
+
+
+@njit
 def _lags_advance(v: float, a: FloatArray, s: FloatArray, b: float, v_prev: FloatArray) -> float:  # pragma: no cover
-    """The lags' states after the static inverse gave ``v``, and the command: the exact inverse
-    of the input lag, ``u = (v - b v_prev) / (1 - b)``."""
+    """The lags' states after the static inverse gave ``v``, and the command (:func:`_input_lead`)."""
     for i in range(a.shape[0]):
         s[i] = (1.0 - a[i]) * v + a[i] * s[i]
-    u = v if b == 0.0 else (v - b * v_prev[0]) / (1.0 - b)
-    v_prev[0] = v
-    return u
+    return _input_lead(v, b, v_prev)
 
 
 @njit
@@ -186,6 +211,9 @@ class RateDependent:
         Sample period the model runs at, s.
     input_tau : float
         Time constant of the input lag, s (0: none).
+    input_lead_gain : float
+        The largest gain of the compensator's lead that inverts the input lag (module docstring;
+        0: unlimited, the exact inverse). Changes the compensator, not the model's output.
     """
 
     kind: ClassVar[str]
@@ -197,6 +225,7 @@ class RateDependent:
     lag_weights: FloatArray
     dt: float
     input_tau: float = 0.0
+    input_lead_gain: float = 0.0
     _a: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -214,6 +243,7 @@ class RateDependent:
         object.__setattr__(self, "lag_weights", frozen(c))
         object.__setattr__(self, "dt", dt)
         object.__setattr__(self, "input_tau", as_scalar("input_tau", self.input_tau, nonnegative=True))
+        object.__setattr__(self, "input_lead_gain", as_scalar("input_lead_gain", self.input_lead_gain, nonnegative=True))
         object.__setattr__(self, "_a", frozen(np.exp(-dt / taus)))
 
     # -- figures ---------------------------------------------------------------------------------
@@ -226,6 +256,13 @@ class RateDependent:
     def input_lag_factor(self) -> float:
         """``b = exp(-dt / input_tau)`` (0 without an input lag)."""
         return lag_factor(self.input_tau, self.dt)
+
+    @property
+    def input_lead_factor(self) -> float:
+        """``f = exp(-G dt / input_tau)`` of the lead's filter (module docstring; 0: the exact inverse)."""
+        if not (self.input_lead_gain > 0.0 and self.input_tau > 0.0):
+            return 0.0
+        return math.exp(-self.input_lead_gain * self.dt / self.input_tau)
 
     @property
     def lag_factors(self) -> FloatArray:
@@ -263,14 +300,15 @@ class RateDependent:
         return (type(self.static) is type(other.static) and self.static == other.static
                 and np.array_equal(self.taus, other.taus)
                 and np.array_equal(self.lag_weights, other.lag_weights) and self.dt == other.dt
-                and self.input_tau == other.input_tau)
+                and self.input_tau == other.input_tau and self.input_lead_gain == other.input_lead_gain)
 
     __hash__ = None  # type: ignore[assignment]
 
     def __repr__(self) -> str:
         return (f"RateDependent({self.static!r}, taus={self.taus.tolist()}, "
                 f"lag_weights={np.round(self.lag_weights, 6).tolist()}, dt={self.dt:g}, "
-                f"input_tau={self.input_tau:g})")
+                f"input_tau={self.input_tau:g}"
+                + (f", input_lead_gain={self.input_lead_gain:g})" if self.input_lead_gain else ")"))
 
     # -- simulation ------------------------------------------------------------------------------
     def lagged_input(self, u: Any) -> FloatArray:
@@ -307,20 +345,26 @@ class RateDependent:
 
     # -- files -----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        """The parameters as plain data: the nested static model, lags (s), weights, dt, input lag."""
-        return {"static": nested_to_dict(self.static), "taus": self.taus.tolist(),
-                "lag_weights": self.lag_weights.tolist(), "dt": self.dt, "input_tau": self.input_tau}
+        """The parameters as plain data: the nested static model, lags (s), weights, dt, input lag
+        (and the compensator's lead limit, where one is set)."""
+        out = {"static": nested_to_dict(self.static), "taus": self.taus.tolist(),
+               "lag_weights": self.lag_weights.tolist(), "dt": self.dt, "input_tau": self.input_tau}
+        if self.input_lead_gain:
+            out["input_lead_gain"] = self.input_lead_gain
+        return out
 
     @classmethod
     def from_dict(cls, params: dict[str, Any]) -> "RateDependent":
         """Rebuild the model from :meth:`to_dict`'s data."""
         static = nested_from_dict(params["static"], "the static part of a rate-dependent model")
         return cls(static=static, taus=params.get("taus", []), lag_weights=params.get("lag_weights", []),
-                   dt=params["dt"], input_tau=params.get("input_tau", 0.0))
+                   dt=params["dt"], input_tau=params.get("input_tau", 0.0),
+                   input_lead_gain=params.get("input_lead_gain", 0.0))
 
     def describe(self) -> dict[str, Any]:
         """The structure in a few plain numbers (for reports)."""
         return {"static": kind_of(self.static), "input_tau_s": self.input_tau,
+                "input_lead_gain": self.input_lead_gain or None,
                 "output_taus_s": self.taus.tolist(), "lag_weights": self.lag_weights.tolist(),
                 "inverse_is_stable": self.inverse_is_stable}
 
@@ -385,12 +429,12 @@ class RateCompensator(Compensator):
     def _reset(self) -> None:
         self._inverse.reset()
         self._s = np.zeros(self.model.taus.size)
-        self._v_prev = np.zeros(1)
+        self._v_prev = np.array([0.0, self.model.input_lead_factor])  # [w(k-1), the lead's filter factor]
         self._args = self._build_kernel_args()
 
     @property
     def _v(self) -> float:
-        """The input-lag state ``v(k-1)``."""
+        """The input-lag state ``w(k-1)`` (``v(k-1)`` for the exact inverse)."""
         return float(self._v_prev[0])
 
     def _kernel_args(self) -> tuple[Any, ...] | None:
@@ -435,10 +479,7 @@ class RateCompensator(Compensator):
         v = float(self._inverse.step(x_d - known))
         for i in range(a.size):
             self._s[i] = (1.0 - a[i]) * v + a[i] * self._s[i]
-        b = self._b
-        u = v if b == 0.0 else (v - b * self._v) / (1.0 - b)  # exact inverse of the input lag
-        self._v_prev[0] = v
-        return u
+        return float(_input_lead(v, self._b, self._v_prev))
 
     def _command(self, x_d: FloatArray) -> FloatArray:
         args = self._kernel_args()
@@ -464,7 +505,8 @@ class RateCompensator(Compensator):
         inv = self._inverse
         static = inv.inverse_parameters() if hasattr(inv, "inverse_parameters") else inv.model.to_dict()
         return {"role": "known = sum c_i a_i s_i; v = S_kappa^-1(x_d - known); s_i = (1 - a_i) v + a_i s_i; "
-                        "u = (v - b v_prev) / (1 - b)",
+                        "w = f w_prev + (1 - f) v; u = (w - b w_prev) / (1 - b); w_prev = w",
+                "input_lead_filter_factor": self.model.input_lead_factor,
                 "static_inverse": static, "kappa": self.kappa, "lag_factors": np.array(self.model._a),
                 "lag_weights": np.array(self.model.lag_weights), "input_lag_factor": self._b,
                 "dt": self.model.dt}
@@ -486,7 +528,14 @@ class RateCompensator(Compensator):
             decl = "    int i;\n"
         else:
             known = update = decl = ""
-        lag = "u = v;" if b == 0.0 else f"u = (v - {c.num(b)} * {v}) / (1.0 - {c.num(b)});"
+        f = self.model.input_lead_factor
+        if b == 0.0:
+            lag = f"u = v;\n    {v} = v;"
+        elif f == 0.0:
+            lag = f"u = (v - {c.num(b)} * {v}) / (1.0 - {c.num(b)});\n    {v} = v;"
+        else:  # the lead limited to input_lead_gain (module docstring)
+            lag = (f"{{ const double w = {c.num(f)} * {v} + (1.0 - {c.num(f)}) * v;\n"
+                   f"      u = (w - {c.num(b)} * {v}) / (1.0 - {c.num(b)});\n      {v} = w; }}")
         c.function(f"""/* rate-dependent inverse: {n} output lag(s), input lag factor b = {b:.17g} */
 static double {fn}(double x)
 {{
@@ -494,7 +543,6 @@ static double {fn}(double x)
     double v, u;
 {decl}{known}    v = {inner}(x - known);
 {update}    {lag}
-    {v} = v;
     return u;
 }}""")
         return fn
