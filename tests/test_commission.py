@@ -543,3 +543,25 @@ def test_a_long_amplifier_lag_at_a_high_sample_rate_keeps_its_input_lag():
         cmd = run.command[per:]
         gain = np.ptp(cmd) / np.ptp(ref)
         assert np.abs(np.diff(cmd)).max() <= 20 * gain * np.abs(np.diff(ref)).max()
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::piezohyst.ClippingWarning")
+@pytest.mark.filterwarnings("ignore::piezohyst.commissioning.AmplifierSlewWarning")
+def test_safe_tuning_waits_for_a_creeping_hold_to_settle():
+    """Behind a 3000 V/s amplifier a saturated P-I stage is commissioned within the slew it shows;
+    at the tuning's hold its feedforward then drifts (0.5 um/s), and the feedback that takes the
+    hold's error out went on moving several probes' worth during the probes: the first trial was
+    stopped twice, the halved ones' answers were buried in the drift, and the stage got no
+    feedback at all (ki = 0; 5 Hz with feedback and learning 0.98 % e_max). The hold is now
+    settled until the feedback stops moving: ki 141 1/s, 0.33 %."""
+    from .plants.census import SaturatedPI
+    from .plants.zoo import Stage
+
+    stage = Stage("saturated P-I behind 3000 V/s", _SlewLimited(SaturatedPI(200.0, 20.0), 3000.0, 2e-4), 2e-4,
+                  (0.0, 200.0), tau_amp=2e-3, kv=((0.05, 0.5),), fn_hz=738.0, zeta=0.04, noise_um=0.004,
+                  delay_samples=1, seed=314)
+    ctl = ph.commission(stage)
+    assert "slew_estimate" in ctl.info
+    assert ctl.tuning.ki > 0.1 * ctl.tuning.ki_model, ctl.tuning.method
+    assert any(e["settled_first"] for e in ctl.tuning.experiments)

@@ -379,6 +379,15 @@ RING_DOWN_S = 0.5
 #: times the probe's own effect; a trial that starts further off first lets the feedback take
 #: the error out, probe off.
 SETTLED_PROBES = 2.0
+#: ... and, once the feedback has taken that error out, it is settled when the feedback moved by
+#: less than this share of the probe over one more stretch as long as a probe's (a stage still
+#: creeping away from the model at the hold keeps the feedback moving: on a saturated P-I stage
+#: whose feedforward drifted 0.5 um/s at the hold, the feedback went on moving several probes'
+#: worth during the probes, which stopped the first trial twice and buried the answers of the
+#: halved ones: ki = 0, no feedback at all), ...
+SETTLED_FEEDBACK = 0.25
+#: ... for at most this many stretches more.
+SETTLE_STRETCHES = 8
 
 
 def _error_ripple(fbs: FloatArray, fb0: float, gain: float) -> float:
@@ -593,14 +602,16 @@ def tune_integral_safely(
     experiments: list[dict[str, Any]] = []
     state: dict[str, Any] = {"y": float(ys[-1]), "sat": 0, "u_lo": math.inf, "u_hi": -math.inf}
 
-    def run(n: int, probe_on: bool, fb0: float, e0: float, check: bool, offset: float = 0.0) -> FloatArray | None:
+    def run(n: int, probe_on: bool, fb0: float, e0: float, check: bool, offset: float = 0.0,
+            fb_room: float = 0.0) -> FloatArray | None:
         """n samples at the hold; the feedback's outputs, or None if the trial had to stop. With
         ``offset`` (µm: the hold's error the feedback is to cancel) the error may move that much
         further, and the feedback the command that cancels it: against the branch the stage came
         up or down, the command moves as far as the slope after a reversal asks (on a play-type
-        stage several times the mean inverse slope)."""
+        stage several times the mean inverse slope). With ``fb_room`` (V) the feedback may move
+        that much further (a hold still settling: as far as it moved over the stretch before)."""
         kw = dict(n=n, level=level, add=probe if probe_on else 0.0, check=check, e0=e0, fb0=fb0,
-                  tol_e=tol_e + abs(offset), tol_fb=tol_fb + abs(offset) * volts_per_um_reversed,
+                  tol_e=tol_e + abs(offset), tol_fb=tol_fb + abs(offset) * volts_per_um_reversed + fb_room,
                   vpu=volts_per_um, state=state)
         fast = run_hold(plant, ff, pid, **kw)  # the same loop, compiled, where the parts have kernels
         return hold_at_level(plant, ff, pid, **kw) if fast is NotImplemented else fast  # type: ignore[no-any-return]
@@ -626,7 +637,20 @@ def tune_integral_safely(
                 # (a model off at this level, the stage still creeping): the feedback first takes it
                 # out, probe off, so that the probes' answers are answers to the probes
                 fb0 = pid.integral * volts_per_um
-                aborted = run(n_p, False, fb0, offset, True, offset=offset) is None
+                fbs = run(n_p, False, fb0, offset, True, offset=offset)
+                aborted = fbs is None
+                # then until the feedback stops moving, each stretch allowed to move it as far as
+                # the one before did (the error stays bounded as in any trial)
+                moved = 0.0 if fbs is None else abs(float(fbs[-1]) - fb0)
+                for _ in range(0 if aborted else SETTLE_STRETCHES):
+                    if moved <= SETTLED_FEEDBACK * probe:
+                        break
+                    fb0 = pid.integral * volts_per_um
+                    fbs = run(n_p, False, fb0, level - state["y"], True, fb_room=moved)
+                    if fbs is None:
+                        aborted = True
+                        break
+                    moved = abs(float(fbs[-1]) - fb0)
             for rep in range(0 if aborted else 2 * opt.repeats):
                 sign = 1.0 if rep % 2 == 0 else -1.0  # probe on, then off
                 fb0 = pid.integral * volts_per_um
