@@ -181,3 +181,34 @@ def test_estimate_period_is_exact_for_any_periodic_shape(shape):
          "raster": np.concatenate([np.linspace(0, 1, 3000), np.linspace(1, 0, 1000)] * 10)}[shape]
     assert estimate_period(x) == 4000
     assert estimate_period(ph.sinusoid(1.0, 4, 0.25, 2.25, 1e-4)) == 10000  # was 9916
+
+
+class _JumpAtStart:
+    """A feedforward whose first command sits a fixed 0.6 V below the rest (the command there was
+    clipped to the range, as behind an input lag's lead at the end of a conditioning sweep): a
+    step no ramp's speed changes."""
+
+    def __init__(self, jump):
+        self.jump = jump
+
+    def command(self, desired):
+        cmd = 10.0 * np.asarray(desired, dtype=float)
+        cmd[0] -= self.jump
+        return cmd
+
+
+def test_a_lead_in_stops_doubling_when_that_no_longer_smooths_it():
+    """The lead-in's ramp doubles until its commands step by at most half the step limit. A step
+    that the ramp's speed does not make never shrinks: the ramp doubled to 5 million samples
+    (80 s of a stage driven sample by sample, on every tracking run of a stage behind a 6 ms
+    amplifier lag). It now stops once doubling no longer shrinks the largest step; a ramp that
+    is merely too fast still doubles until smooth."""
+    from piezohyst.control.tracking import lead_in
+    from piezohyst.plant import CommandLimits
+
+    limits = CommandLimits.for_range((0.0, 100.0), max_step_fraction=0.01, rest=0.0)  # 1 V per sample
+    dt = 1e-4
+    desired, cmd = lead_in(_JumpAtStart(0.6), 1.0, 9.0, limits, dt)
+    assert desired.size < 10_000, desired.size  # 6.6 million before
+    desired, cmd = lead_in(_JumpAtStart(0.0), 1.0, 9.0, limits, dt)  # 80 V up: at least 160 samples
+    assert np.abs(np.diff(cmd)).max() <= 0.5 and desired.size >= 160

@@ -298,25 +298,48 @@ def lead_in(feedforward: Any, y_from: float, y_to: float, limits: Any, dt: float
 
     The ramp's length starts at the safe layer's shortest ramp and doubles until the commands,
     computed offline with ``feedforward.command``, are that smooth (the inverse of an input lag is
-    a lead: a fast ramp in displacement asks for a much faster one in volts), or until it passes
-    ``max_samples`` (the commands are then returned as they are).
+    a lead: a fast ramp in displacement asks for a much faster one in volts), until
+    :data:`LEAD_IN_STUCK_DOUBLINGS` doublings in a row leave the largest step as it was (a step the
+    ramp's speed does not make: where the commands at the end of ``before`` were clipped to the
+    range, the first of the ramp's steps back into it is the same whatever its length, and the
+    ramp doubled to 5 million samples, 80 s of a stage driven sample by sample, on every run; a
+    backlash's gap, crossed at the ramp's start, shrinks unevenly but shrinks), or until it passes
+    ``max_samples`` (the commands are then returned as they are; the safe layer limits their steps).
     """
     n = max(int(math.ceil(min_seconds / dt)), 2)
     head = np.empty(0) if before is None else np.asarray(before, dtype=np.float64)[:-1]
+    largest, stuck = math.inf, 0
     while True:
         k = np.arange(1, n + 1) / n
         desired = y_from + (y_to - y_from) * 0.5 * (1.0 - np.cos(np.pi * k))
         desired = np.concatenate([head, [y_from], desired])
         cmd = feedforward.command(desired)
-        if _smooth_enough(cmd[head.size:], limits, share) or n > max_samples:
+        ramp = cmd[head.size:]
+        if _smooth_enough(ramp, limits, share) or n > max_samples:
             return desired, cmd
+        step = _largest_step(ramp, limits)
+        stuck = stuck + 1 if step >= LEAD_IN_SAME_STEP * largest else 0
+        if stuck >= LEAD_IN_STUCK_DOUBLINGS:
+            return desired, cmd
+        largest = step
         n *= 2
+
+
+#: :func:`lead_in` stops doubling its ramp after this many doublings in a row each left the
+#: largest step at least :data:`LEAD_IN_SAME_STEP` of the one before (a smooth ramp's steps halve).
+LEAD_IN_STUCK_DOUBLINGS = 3
+LEAD_IN_SAME_STEP = 0.99
+
+
+def _largest_step(cmd: FloatArray, limits: Any) -> float:
+    """The largest change per sample of commands clipped to the range (0 for fewer than two)."""
+    steps = np.abs(np.diff(np.clip(cmd, limits.low, limits.high)))
+    return float(steps.max()) if steps.size else 0.0
 
 
 def _smooth_enough(cmd: FloatArray, limits: Any, share: float) -> bool:
     """Whether commands (clipped to the range) change by at most ``share * limits.max_step`` per sample."""
-    steps = np.abs(np.diff(np.clip(cmd, limits.low, limits.high)))
-    return steps.size == 0 or bool(steps.max() <= share * limits.max_step)
+    return _largest_step(cmd, limits) <= share * limits.max_step
 
 
 #: The longest lead-in from rest (:func:`lead_in_from_rest`) tried straight from the model's
