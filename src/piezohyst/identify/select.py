@@ -1166,12 +1166,16 @@ def _raw_step_excess(model: Any, dt: float, y: FloatArray, ranges: SearchRanges)
         cmd = np.asarray(comp.command(x), dtype=np.float64)
         if not np.all(np.isfinite(cmd)):
             return math.inf
-        raw, ref = cmd[per:], x[per:]
-        gain = float(np.ptp(raw)) / float(np.ptp(ref)) if np.ptp(ref) > 0 else 0.0
-        bound = CHATTER_STEP * gain * float(np.abs(np.diff(ref)).max())
-        if bound > 0:
-            worst = max(worst, float(np.abs(np.diff(raw)).max()) / bound)
+        worst = max(worst, _raw_step_ratio(cmd[per:], x[per:]))
     return worst
+
+
+def _raw_step_ratio(raw: FloatArray, ref: FloatArray) -> float:
+    """The command's largest step over :data:`CHATTER_STEP` times the reference's, scaled by the
+    mean gain (0 where the reference does not move)."""
+    gain = float(np.ptp(raw)) / float(np.ptp(ref)) if np.ptp(ref) > 0 else 0.0
+    bound = CHATTER_STEP * gain * float(np.abs(np.diff(ref)).max())
+    return float(np.abs(np.diff(raw)).max()) / bound if bound > 0 else 0.0
 
 
 def _chatters(model: Any, dt: float, y: FloatArray, ranges: SearchRanges, *, raw_steps: bool = True) -> bool:
@@ -1203,9 +1207,7 @@ def _chatters(model: Any, dt: float, y: FloatArray, ranges: SearchRanges, *, raw
             # the raw command's steps: at most CHATTER_STEP times the reference's, scaled by the
             # mean gain (what the zoo's tests ask of a command); its turns: as the model's own
             # input lag passes it on to the stage
-            raw, ref = cmd[per:], x[per:]
-            gain = float(np.ptp(raw)) / float(np.ptp(ref)) if np.ptp(ref) > 0 else 0.0
-            if raw_steps and float(np.abs(np.diff(raw)).max()) > CHATTER_STEP * gain * float(np.abs(np.diff(ref)).max()):
+            if raw_steps and _raw_step_ratio(cmd[per:], x[per:]) > 1.0:
                 return True
             cmd = first_order_lag(cmd, b)
         dx = np.diff(x[per:])
