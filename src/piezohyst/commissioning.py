@@ -1099,7 +1099,6 @@ def followed_step(u: Any, y: Any, *, warmup: int = 0, max_delay: int = 20,
     Returns ``{"max_step": s, "rmse_as_sent": ..., "rmse_slewed": ..., "input_lag_samples": tau,
     "rmse_input_lag": ..., "tried": [(s, rmse), ...]}``.
     """
-    from .identify import fit_pi
     from .plant import rate_limited
 
     u = np.asarray(u, dtype=np.float64)
@@ -1110,11 +1109,7 @@ def followed_step(u: Any, y: Any, *, warmup: int = 0, max_delay: int = 20,
         return None
 
     def rmse(step: float) -> float:
-        v = rate_limited(u, step)[warmup:] if step < largest else u[warmup:]
-        try:
-            return float(fit_pi(v, y[warmup:], 20, delay="auto", max_auto_delay=max_delay).rmse)
-        except ValueError:  # slowed so far that the output no longer rises with it: no fit at all
-            return math.inf
+        return _pi_fit_rmse(rate_limited(u, step) if step < largest else u, y, warmup, max_delay)
 
     tried = {largest: rmse(largest)}
     for k in range(1, 7):  # octaves down to a 64th
@@ -1135,21 +1130,29 @@ def followed_step(u: Any, y: Any, *, warmup: int = 0, max_delay: int = 20,
             "input_lag_samples": tau, "rmse_input_lag": lagged, "tried": sorted(tried.items(), reverse=True)}
 
 
+def _pi_fit_rmse(v: FloatArray, y: FloatArray, warmup: int, max_delay: int) -> float:
+    """The RMS error of a 20-operator P-I model fitted from the commands ``v`` (as the amplifier
+    passed them on, in a guess) to ``y``, the samples after ``warmup`` (delay chosen on held-out
+    data, up to ``max_delay``); infinite where none fits (``v`` so far from what reached the stage
+    that the output no longer rises with it)."""
+    from .identify import fit_pi
+
+    try:
+        return float(fit_pi(v[warmup:], y[warmup:], 20, delay="auto", max_auto_delay=max_delay).rmse)
+    except ValueError:
+        return math.inf
+
+
 def _best_input_lag(u: FloatArray, y: FloatArray, warmup: int, max_delay: int) -> tuple[float, float]:
     """The time constant (samples) of the first-order lag, from half a sample to a twentieth of
     the record, through which a 20-operator P-I model fits ``u`` to ``y`` best, and that fit's
     RMS error: octaves, then bounded Brent between the best's neighbours."""
     from scipy.optimize import minimize_scalar
 
-    from .identify import fit_pi
     from .models.rate import first_order_lag
 
-    def rmse(x: float) -> float:
-        v = first_order_lag(u - u[0], math.exp(-1.0 / 2.0 ** x)) + u[0]  # from rest at the first command
-        try:
-            return float(fit_pi(v[warmup:], y[warmup:], 20, delay="auto", max_auto_delay=max_delay).rmse)
-        except ValueError:
-            return math.inf
+    def rmse(x: float) -> float:  # from rest at the first command
+        return _pi_fit_rmse(first_order_lag(u - u[0], math.exp(-1.0 / 2.0 ** x)) + u[0], y, warmup, max_delay)
 
     grid = np.arange(-1.0, math.log2(max(u.size / 20.0, 1.0)) + 1e-9, 1.0)
     if grid.size == 0:

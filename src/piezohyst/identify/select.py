@@ -1091,24 +1091,28 @@ def _turns(x: FloatArray, tol: float) -> int:
     return int(np.count_nonzero(np.diff(np.sign(d)) != 0))
 
 
+def _lag_part(model: Any) -> Any:
+    """The part of ``model`` that carries its input lag: an asymmetric P-I model's inner model (as
+    linear._instantaneous_min_slope unwraps it), else the model itself."""
+    return getattr(model, "inner", model)
+
+
 def _input_lag_factor(model: Any) -> float:
     """The model's input lag factor ``b`` (:attr:`~piezohyst.models.rate.RateDependent.input_lag_factor`),
     also inside an asymmetric P-I model; 0 without an input lag."""
-    inner = getattr(model, "inner", model)  # (as linear._instantaneous_min_slope unwraps it)
-    return float(getattr(inner, "input_lag_factor", 0.0))
+    return float(getattr(_lag_part(model), "input_lag_factor", 0.0))
 
 
 def _input_lead_gain(model: Any) -> float:
     """The limit on the gain of the model's input-lag lead (0: none), also inside an asymmetric P-I model."""
-    return float(getattr(getattr(model, "inner", model), "input_lead_gain", 0.0))
+    return float(getattr(_lag_part(model), "input_lead_gain", 0.0))
 
 
 def _with_input_lead_gain(model: Any, gain: float) -> Any:
     """The same model with its compensator's input-lag lead limited to ``gain``."""
-    inner = getattr(model, "inner", None)
-    if inner is not None and hasattr(inner, "input_lead_gain"):
-        return replace(model, inner=replace(inner, input_lead_gain=gain))
-    return replace(model, input_lead_gain=gain)
+    part = _lag_part(model)
+    limited = replace(part, input_lead_gain=gain)
+    return limited if part is model else replace(model, inner=limited)
 
 
 def _with_limited_lead(model: Any, dt: float, y: FloatArray, ranges: SearchRanges) -> Any:

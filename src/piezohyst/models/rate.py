@@ -472,14 +472,8 @@ class RateCompensator(Compensator):
             self._kernel_back(args)
             return float(u)
         m = self.model
-        a, c = m._a, m.lag_weights
-        known = 0.0
-        for i in range(a.size):
-            known += float(c[i]) * float(a[i]) * self._s[i]
-        v = float(self._inverse.step(x_d - known))
-        for i in range(a.size):
-            self._s[i] = (1.0 - a[i]) * v + a[i] * self._s[i]
-        return float(_input_lead(v, self._b, self._v_prev))
+        v = float(self._inverse.step(x_d - _lags_known(m._a, m.lag_weights, self._s)))
+        return float(_lags_advance(v, m._a, self._s, self._b, self._v_prev))
 
     def _command(self, x_d: FloatArray) -> FloatArray:
         args = self._kernel_args()
