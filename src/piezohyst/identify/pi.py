@@ -29,6 +29,7 @@ from ..models.pi import PrandtlIshlinskii, equal_thresholds
 from ..models.play import GramStats, _gram_stats, default_chunk_rows, pi_gram, pi_simulate_strict, play_outputs
 from ..pso import pso_minimize, swarm_best_update, swarm_move
 from .lsq import bounded_lstsq_gram, bounded_lstsq_gram_many
+from .linear import largest_loop_threshold, unreversed_thresholds
 from .result import FitResult, paired_signals as _pair, unpack_data
 
 
@@ -309,8 +310,19 @@ def fit_pi(
     resid = ys - pi_simulate_strict(np.ascontiguousarray(us, dtype=np.float64), model.thresholds, model.weights,
                                     np.array(model.initial_state), model.input_offset, model.offset)
     rmse = float(np.sqrt(np.mean(resid**2)))
+    notes = []
+    unreversed = unreversed_thresholds(model.thresholds, us)
+    if unreversed.size:
+        notes.append(f"{unreversed.size} operator{'s' if unreversed.size > 1 else ''} (threshold "
+                     f"{unreversed.min():.4g}{'..' + format(unreversed.max(), '.4g') if unreversed.size > 1 else ''}) "
+                     f"{'are' if unreversed.size > 1 else 'is'} never reversed by this record (its largest loop is "
+                     f"{2 * largest_loop_threshold(us):.4g} of its {float(np.ptp(us)):.4g} range), yet a cycle over "
+                     f"the range reverses {'them' if unreversed.size > 1 else 'it'}: only the way from rest sets "
+                     f"{'their weights' if unreversed.size > 1 else 'its weight'}, and such a cycle may be predicted "
+                     f"poorly. Identify on a record with a cycle over the whole range, or with fit_model, which "
+                     f"spreads the thresholds over the loops a record holds")
     return FitResult(model=model, rmse=rmse, method=method, n_samples=int(us.size),
                      time_s=time.perf_counter() - t0, nit=nit, nfev=nfev, history=history,
-                     message=message, delay=int(delay), info=info,
+                     message=message, delay=int(delay), info=info, warnings=notes,
                      input_range=(float(us.min()), float(us.max())))
 

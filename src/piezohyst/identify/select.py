@@ -78,7 +78,8 @@ from ..models.rate import first_order_lag
 from .glitches import SPAN_SHARE as GLITCH_SPAN_SHARE
 from .glitches import bridge_glitches, find_glitches
 from .monotone import range_warnings, rises_with_input, turn_indices
-from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
+from .linear import (DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, largest_loop_threshold,
+                     mean_slope, prepare)
 from .result import FitResult, paired_signals, unpack_data
 
 #: Relative drop of the hold-out error a more complex candidate must bring to be preferred.
@@ -1268,6 +1269,12 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
         out.append(f"the input reverses only at the ends of its range ({ends} reversals): loops inside it (partial "
                    f"strokes) are not identified and the model may follow them poorly; a record that also reverses "
                    f"at smaller amplitudes (a decaying sinusoid, commissioning_excitation) identifies them")
+    loop = 2.0 * largest_loop_threshold(uu) if turns else 0.0
+    if turns and loop < SMALL_LOOPS * (hi - lo):
+        out.append(f"the input's largest loop spans {loop:.4g} V of its {hi - lo:.4g} V range (it never travels further "
+                   f"against its last direction): loops larger than that (a cycle over the whole range) are "
+                   f"extrapolated, and the model may follow them poorly; a record with a cycle over the whole "
+                   f"range (a decaying sinusoid, commissioning_excitation) identifies them")
     falls, reversals = _falling_after_reversal(uu, y[d:] if d else y, pred[: pred.size - d] if d else pred, span)
     if falls >= max(3, 0.1 * reversals):
         out.append(f"after {falls} input reversals the output keeps moving the old way where the model (with its "
@@ -1298,6 +1305,10 @@ def _residual_by_rate(du: FloatArray, resid: FloatArray, span: float) -> tuple[f
     fast, slow = resid[sp >= q90], resid[sp <= q50]
     return (100.0 * float(np.sqrt(np.mean(fast**2))) / span, 100.0 * float(np.sqrt(np.mean(slow**2))) / span)
 
+
+#: The small-loops warning (:func:`_quality_warnings`): the input's largest loop
+#: (:func:`~piezohyst.identify.linear.largest_loop_threshold`, twice) below this share of its range.
+SMALL_LOOPS = 0.9
 
 #: Share of the input's range a turning point may lie from its end and still count as at the end
 #: (the major-loops warning); also the dead band that tells a reversal from noise.

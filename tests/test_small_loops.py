@@ -1,0 +1,112 @@
+"""A record whose loops are smaller than its range (issue 11: models that fit any stage).
+
+A multisine, a random walk or strokes around a working point never close a loop as large as
+their range. A P-I operator whose threshold lies between half the largest loop and half the range
+is then never reversed by the record (its weight is set by nothing but the way from rest), yet a
+cycle over the whole range reverses it. Measured before this rule (fit on a 0-10 V four-tone
+multisine of the zoo's stages, predicting a 0-10 V 3 Hz sinusoid, RMS % of span): dead zone +
+play + saturation 19.5 %, asymmetric Maxwell-slip 3.4 %, falling after reversal 4.6 %; with it
+2.4 %, 0.09 %, 0.19 %.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import piezohyst as ph
+from piezohyst.identify.linear import _play_moves_both_ways, largest_loop_threshold, loop_thresholds
+from tests.plants.zoo import zoo
+
+
+def multisine(lo, hi, dt, seconds=3.0, seed=1):
+    """Four tones (0.7, 1.9, 4.3, 9.1 Hz) of random phase, scaled onto ``lo..hi``."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(seconds / dt)) * dt
+    x = sum(np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi)) for f in (0.7, 1.9, 4.3, 9.1))
+    return lo + (hi - lo) * (x - x.min()) / np.ptp(x)
+
+
+turning_points = st.lists(st.floats(-100.0, 100.0, allow_nan=False), min_size=2, max_size=12)
+
+
+@settings(max_examples=150, deadline=None)
+@given(points=turning_points)
+def test_largest_loop_threshold_is_the_largest_operator_the_input_reverses(points):
+    v = np.interp(np.linspace(0, len(points) - 1, 40 * len(points)), np.arange(len(points)), points)
+    r = largest_loop_threshold(v)
+    half = 0.5 * float(np.ptp(v))
+    assert 0.0 <= r <= half
+    if r > 0.0:  # that operator moves both ways; one a thousandth of the half-span above it does not
+        assert _play_moves_both_ways(v, r)
+        assert not _play_moves_both_ways(v, r + 2e-3 * half)
+    # moving both ways is monotone in the threshold: every smaller operator does too
+    for s in np.linspace(0.0, r, 7)[:-1]:
+        if r > 0.0:
+            assert _play_moves_both_ways(v, s)
+
+
+def test_the_largest_loop_spans_an_interrupted_leg():
+    # 10 -> 6 -> 7 -> 1: the 10 -> 1 leg (9 V, interrupted by a 1 V loop) reverses operators up to 4.5 V
+    assert largest_loop_threshold(np.array([0.0, 10.0, 6.0, 7.0, 1.0])) == pytest.approx(4.5, abs=0.01)
+    assert largest_loop_threshold(np.array([0.0, 1.0, 2.0])) == 0.0  # never reverses
+
+
+def test_thresholds_of_a_full_range_record_are_left_as_they_are():
+    t = np.arange(4000) * 1e-3
+    u = 50.0 - 50.0 * np.cos(2 * np.pi * t)  # 0..100 V, full loops
+    for r in (ph.equal_thresholds(20, 100.0), np.arange(40) / 40 * 50.0):
+        got, cap = loop_thresholds(r, u)
+        assert cap is None and np.array_equal(got, r)
+
+
+def test_no_threshold_is_left_between_the_largest_loop_and_half_the_range():
+    u = multisine(0.0, 10.0, 5e-4)
+    half = 0.5 * float(np.ptp(u))
+    for r in (ph.equal_thresholds(10, 10.0), np.arange(20) / 20 * half):
+        got, cap = loop_thresholds(r, u)
+        assert cap is not None and cap < half
+        assert got.size == r.size and np.all(np.diff(got) > 0)
+        assert not np.any((got > cap) & (got < half))
+        assert np.array_equal(got[got >= half], r[r >= half])  # eq. 4's loading curve stays
+
+
+@pytest.mark.parametrize("index, most", [(0, 1.0), (3, 5.0), (5, 1.0)])
+def test_a_model_fitted_on_small_loops_follows_a_full_range_cycle(index, most):
+    stage = zoo(seed=0)[index]
+    lo, hi = stage.u_range
+    train = stage.excite(multisine(lo, hi, stage.dt))
+    test = stage.excite(ph.sinusoid(3.0, 3, lo, hi, stage.dt))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = ph.fit_model(train, kind="auto")
+    e = fit.residual(test.u, test.y, stage.dt)
+    rms = 100.0 * float(np.sqrt(np.mean(e[e.size // 3:] ** 2))) / float(np.ptp(test.y))
+    assert rms < most, (stage.name, fit.info["chosen"], rms)
+    assert any("largest loop spans" in w for w in fit.warnings), fit.warnings
+
+
+def test_a_record_with_a_full_cycle_is_not_warned_about_its_loops():
+    stage = zoo(seed=0)[0]
+    lo, hi = stage.u_range
+    u = np.concatenate([ph.sinusoid(2.0, 1, lo, hi, stage.dt), multisine(lo, hi, stage.dt)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = ph.fit_model(stage.excite(u), kind="prandtl-ishlinskii")
+    assert not any("largest loop spans" in w for w in fit.warnings), fit.warnings
+
+
+def test_fit_pi_says_which_operators_the_record_never_reverses():
+    stage = zoo(seed=0)[3]
+    lo, hi = stage.u_range
+    small = stage.excite(multisine(lo, hi, stage.dt))
+    fit = ph.fit_pi(small.u, small.y)  # the paper's eq. (4) thresholds, as asked
+    said = [w for w in fit.warnings if "never reversed by this record" in w]
+    assert len(said) == 1, fit.warnings
+    cap = largest_loop_threshold(small.u)
+    r = fit.model.thresholds
+    assert f"threshold {r[(r > cap) & (r < 0.5 * np.ptp(small.u))].min():.4g}" in said[0]
+    full = stage.excite(ph.sinusoid(1.0, 2, lo, hi, stage.dt))
+    assert not any("never reversed" in w for w in ph.fit_pi(full.u, full.y).warnings)
