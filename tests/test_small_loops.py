@@ -110,3 +110,23 @@ def test_fit_pi_says_which_operators_the_record_never_reverses():
     assert f"threshold {r[(r > cap) & (r < 0.5 * np.ptp(small.u))].min():.4g}" in said[0]
     full = stage.excite(ph.sinusoid(1.0, 2, lo, hi, stage.dt))
     assert not any("never reversed" in w for w in ph.fit_pi(full.u, full.y).warnings)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "small strokes: commission() chooses among models on its own excitation, whose loops are mostly "
+    "large; on the census's saturated P-I stage it chose a 16-level Preisach grid (6.25 V cells on 0-100 V), "
+    "which predicts a 1 Hz sinusoid over 16 % of the range to 0.4 % of its span but a 6 V one at 10-80 V "
+    "to 11-32 %: the feedforward over 20 % of the stroke around its middle missed by 5.58 % of that span "
+    "(the inverse exact to 1e-11; all model error), where over 10-90 % it misses by 0.38 %"))
+def test_a_small_stroke_around_the_middle_is_followed_by_the_feedforward():
+    from tests.plants.census import census
+    from tests.test_zoo import steady_range
+
+    stage = [s for s in census(seed=0) if s.name.startswith("saturated P-I")][0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ctl = ph.commission(stage)
+        a, b = steady_range(stage)
+        mid, w = 0.5 * (a + b), 0.1 * (b - a)
+        out = ctl.track(ph.sinusoid(1.0, 3, mid - w, mid + w, stage.dt), feedback=False, learning=False)
+    assert out.e_max_percent < 2.0, out.e_max_percent
