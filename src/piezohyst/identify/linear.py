@@ -121,26 +121,29 @@ def loop_thresholds(r: FloatArray, v: FloatArray) -> tuple[FloatArray, float | N
     Thresholds of at least half the span never reverse within the range (eq. 4's upper half on a
     unipolar record: the loading curve from rest) and stay.
     """
-    x = np.ascontiguousarray(v, dtype=np.float64)
-    half = 0.5 * float(np.ptp(x)) if x.size else 0.0
-    inside = r[r < half]
-    if inside.size == 0 or _play_moves_both_ways(x, float(inside.max())):
+    inside, cap = _below_half_span(r, v)
+    if cap is None:
         return r, None
-    cap = largest_loop_threshold(x)
-    return np.concatenate([np.arange(inside.size, dtype=np.float64) / inside.size * cap, r[r >= half]]), cap
+    return np.concatenate([np.arange(inside.size, dtype=np.float64) / inside.size * cap, r[inside.size:]]), cap
+
+
+def _below_half_span(r: FloatArray, v: FloatArray) -> tuple[FloatArray, float | None]:
+    """The thresholds of ``r`` (ascending) below half the span of ``v``, and the record's
+    :func:`largest_loop_threshold` where the largest of them is above it (else None)."""
+    x = np.ascontiguousarray(v, dtype=np.float64)
+    rr = np.asarray(r, dtype=np.float64)
+    inside = rr[rr < 0.5 * float(np.ptp(x))] if x.size else rr[:0]
+    if inside.size == 0 or _play_moves_both_ways(x, float(inside.max())):
+        return inside, None
+    return inside, largest_loop_threshold(x)
 
 
 def unreversed_thresholds(r: FloatArray, v: FloatArray) -> FloatArray:
     """The thresholds of ``r`` that the input ``v`` never reverses although a cycle within its
     range would (above :func:`largest_loop_threshold`, below half the span): see
     :func:`loop_thresholds`; empty when there are none."""
-    x = np.ascontiguousarray(v, dtype=np.float64)
-    rr = np.asarray(r, dtype=np.float64)
-    inside = rr[rr < 0.5 * float(np.ptp(x))] if x.size else rr[:0]
-    if inside.size == 0 or _play_moves_both_ways(x, float(inside.max())):
-        return rr[:0]
-    cap = largest_loop_threshold(x)
-    return inside[inside > cap]
+    inside, cap = _below_half_span(r, v)
+    return inside[:0] if cap is None else inside[inside > cap]
 
 
 @dataclass(frozen=True)
