@@ -105,3 +105,24 @@ def test_the_top_end_is_found_the_same_way():
     r = monotone_range(-u, -y)
     assert r.low is None and r.high is not None and 30.0 < r.high < 40.0, r
     assert "falling from the top reversals the output goes on rising" in r.describe(-60.0, 60.0)
+
+
+def test_a_clipped_sensor_is_named_and_a_stages_own_turns_are_not():
+    from piezohyst.identify.monotone import clipped_output
+    from tests.plants.zoo import zoo
+
+    for stage in zoo(seed=0):
+        lo, hi = stage.u_range
+        d = stage.excite(ph.sinusoid(1.0, 3, lo, hi, stage.dt))
+        q = np.ptp(d.y) / 2**12  # a 12-bit reading: its top turn spans a few equal samples
+        assert clipped_output(d.u, d.y) == [], stage.name
+        assert clipped_output(d.u, np.round(d.y / q) * q) == [], stage.name
+        top = float(d.y.min() + 0.9 * np.ptp(d.y))
+        said = clipped_output(d.u, np.minimum(d.y, top))
+        assert [s[:2] for s in said] == [("top", top)], stage.name
+        assert said[0][4] == pytest.approx(hi, rel=1e-6) and said[0][3] < hi - 0.05 * (hi - lo)
+    stage = zoo(seed=0)[0]
+    lo, hi = stage.u_range
+    d = stage.excite(ph.sinusoid(1.0, 3, lo, hi, stage.dt))
+    fit = ph.fit_model(d.u, np.maximum(d.y, float(d.y.min() + 0.1 * np.ptp(d.y))), stage.dt, kind="prandtl-ishlinskii")
+    assert any("its smallest value" in w and "clipped" in w for w in fit.warnings), fit.warnings

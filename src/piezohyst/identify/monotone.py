@@ -224,11 +224,49 @@ def _dead_from_start(dead: NDArray[np.bool_], alive: NDArray[np.bool_]) -> int:
     return int(dead_before[-1]) + 1 if dead_before.size else 0
 
 
+#: A clipped output (:func:`clipped_output`): at least this share of the samples (and
+#: :data:`CLIPPED_MIN_SAMPLES`) sit exactly at the output's largest or smallest value while the
+#: input moves over at least :data:`CLIPPED_INPUT_SHARE` of its span.
+CLIPPED_SHARE = 0.01
+CLIPPED_MIN_SAMPLES = 5
+CLIPPED_INPUT_SHARE = 0.05
+
+
+def clipped_output(u: FloatArray, y: FloatArray) -> list[tuple[str, float, int, float, float]]:
+    """The ends at which the output is clipped: ``(end, value, samples, u_from, u_to)`` for each
+    end (``"top"``, ``"bottom"``) where at least :data:`CLIPPED_SHARE` of the samples hold exactly
+    the output's extreme value while the input moves over at least :data:`CLIPPED_INPUT_SHARE` of
+    its span (a sensor or converter at the end of its range: the stage moved, the reading did not).
+    A stage's own loop reaches its extreme at one turn, and noise makes it a single sample.
+
+    >>> u = np.linspace(0.0, 10.0, 101)
+    >>> clipped_output(u, np.minimum(u, 8.0))
+    [('top', 8.0, 21, 8.0, 10.0)]
+    """
+    uu, yy = np.asarray(u, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    if uu.size < 10 or not np.ptp(uu) > 0:
+        return []
+    out = []
+    for end, value in (("top", float(yy.max())), ("bottom", float(yy.min()))):
+        at = yy == value
+        k = int(at.sum())
+        if k >= max(CLIPPED_MIN_SAMPLES, CLIPPED_SHARE * yy.size):
+            lo_u, hi_u = float(uu[at].min()), float(uu[at].max())
+            if hi_u - lo_u >= CLIPPED_INPUT_SHARE * float(np.ptp(uu)):
+                out.append((end, value, k, lo_u, hi_u))
+    return out
+
+
 def range_warnings(u: FloatArray, y: FloatArray) -> list[str]:
     """What a record shows of its range that a model fitted over all of it cannot use: an end where
     the stage is not monotone (:func:`monotone_range`) and one where it does not move
     (:func:`dead_range`), one sentence each (``u`` and ``y`` paired, a delay taken out)."""
     out = []
+    for end, value, k, lo_u, hi_u in clipped_output(u, y):
+        out.append(f"the output stays at {value:.6g} ({'its largest' if end == 'top' else 'its smallest'} value) for "
+                   f"{k} samples ({100.0 * k / len(y):.1f} %) while the input moves over {lo_u:.4g}..{hi_u:.4g} V: "
+                   f"a sensor or converter clipped at the end of its range? Those samples say nothing of the "
+                   f"stage; fit without them (a narrower input range, or --train / a slice of the record)")
     lo, hi = float(np.min(u)), float(np.max(u))
     mono = monotone_range(u, y)
     if not mono.monotone:
@@ -324,4 +362,4 @@ def monotone_range(u: FloatArray, y: FloatArray) -> MonotoneRange:
     return MonotoneRange(ends[0][0], ends[1][0], (ends[0][1], ends[1][1]), (ends[0][2], ends[1][2]))
 
 
-__all__ = ["DeadRange", "DeadRangeWarning", "dead_range", "range_warnings", "MonotoneRange", "NotMonotoneWarning", "monotone_range", "rises_with_input", "turn_indices", "MIN_TRAVEL", "MIN_FALL"]
+__all__ = ["DeadRange", "DeadRangeWarning", "clipped_output", "dead_range", "range_warnings", "MonotoneRange", "NotMonotoneWarning", "monotone_range", "rises_with_input", "turn_indices", "MIN_TRAVEL", "MIN_FALL"]
