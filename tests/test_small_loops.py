@@ -132,3 +132,23 @@ def test_a_small_stroke_around_the_middle_is_followed_by_the_feedforward():
         mid, w = 0.5 * (a + b), 0.1 * (b - a)
         out = ctl.track(ph.sinusoid(1.0, 3, mid - w, mid + w, stage.dt), feedback=False, learning=False)
     assert out.e_max_percent < 2.0, out.e_max_percent
+
+
+def test_a_record_that_never_reverses_keeps_its_thresholds():
+    # a rise alone (or one whose reversals are noise) shows no loop to spread the thresholds over:
+    # they stay as the rule gives them (the bench's compile workload once fitted such a record, and
+    # every threshold had collapsed onto zero)
+    rise = np.linspace(0.0, 100.0, 500)
+    wiggle = rise + 0.01 * np.sin(np.arange(500))
+    r = np.arange(20) / 20 * 50.0
+    for u in (rise, wiggle):
+        got, cap = loop_thresholds(r, u)
+        assert cap is None and np.array_equal(got, r)
+    rig = ph.VirtualRig()
+    ds = rig.excite(ph.sinusoid(1.0, 0.2, 0.0, 100.0, rig.dt))  # a fifth of a cycle: rising only
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = ph.identify.fit_rate_pi(ds.u, ds.y, rig.dt, delay=0)
+        assert np.all(np.diff(fit.model.static.thresholds) > 0)
+        fit = ph.fit_model(ds, kind="prandtl-ishlinskii", delay=0)
+    assert any("never reverses" in w for w in fit.warnings), fit.warnings

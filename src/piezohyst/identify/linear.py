@@ -61,6 +61,11 @@ PREISACH_RIDGE = 1e-4
 PREISACH_STRIP_RIDGE = 1e-8
 
 
+#: A record whose largest loop is below this share of its span (one that never reverses, or only
+#: by noise) keeps its P-I thresholds as they are (:func:`loop_thresholds`).
+LOOPS_TOO_SMALL = 0.05
+
+
 @njit
 def _play_moves_both_ways(v: FloatArray, r: float) -> bool:  # pragma: no cover - compiled
     """Whether the play operator of threshold ``r``, from rest (``z = 0``), moves both up and down over ``v``."""
@@ -129,13 +134,17 @@ def loop_thresholds(r: FloatArray, v: FloatArray) -> tuple[FloatArray, float | N
 
 def _below_half_span(r: FloatArray, v: FloatArray) -> tuple[FloatArray, float | None]:
     """The thresholds of ``r`` (ascending) below half the span of ``v``, and the record's
-    :func:`largest_loop_threshold` where the largest of them is above it (else None)."""
+    :func:`largest_loop_threshold` where the largest of them is above it (else None; also None
+    where the record's loops are below :data:`LOOPS_TOO_SMALL` of its span, or it never reverses:
+    it then tells nothing of any operator's reversal, and its thresholds stay)."""
     x = np.ascontiguousarray(v, dtype=np.float64)
     rr = np.asarray(r, dtype=np.float64)
-    inside = rr[rr < 0.5 * float(np.ptp(x))] if x.size else rr[:0]
+    half = 0.5 * float(np.ptp(x)) if x.size else 0.0
+    inside = rr[rr < half]
     if inside.size == 0 or _play_moves_both_ways(x, float(inside.max())):
         return inside, None
-    return inside, largest_loop_threshold(x)
+    cap = largest_loop_threshold(x)
+    return inside, (cap if cap > LOOPS_TOO_SMALL * half else None)
 
 
 def unreversed_thresholds(r: FloatArray, v: FloatArray) -> FloatArray:
