@@ -9,6 +9,7 @@ play + saturation 19.5 %, asymmetric Maxwell-slip 3.4 %, falling after reversal 
 2.4 %, 0.09 %, 0.19 %.
 """
 
+import json
 import warnings
 
 import numpy as np
@@ -17,7 +18,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import piezohyst as ph
-from piezohyst.identify.linear import _play_moves_both_ways, largest_loop_threshold, loop_thresholds
+from piezohyst.identify.linear import loop_thresholds
+from piezohyst.identify.result import ExtrapolationWarning
+from piezohyst.models.play import largest_loop_threshold, play_moves_both_ways
 from tests.plants.zoo import zoo
 
 
@@ -39,18 +42,19 @@ def test_largest_loop_threshold_is_the_largest_operator_the_input_reverses(point
     r = largest_loop_threshold(v)
     half = 0.5 * float(np.ptp(v))
     assert 0.0 <= r <= half
-    if r > 0.0:  # that operator moves both ways; one a thousandth of the half-span above it does not
-        assert _play_moves_both_ways(v, r)
-        assert not _play_moves_both_ways(v, r + 2e-3 * half)
-    # moving both ways is monotone in the threshold: every smaller operator does too
-    for s in np.linspace(0.0, r, 7)[:-1]:
-        if r > 0.0:
-            assert _play_moves_both_ways(v, s)
+    # the supremum: an operator just below it moves both ways, none at or above it does
+    assert not play_moves_both_ways(v, r * (1 + 1e-9) + 1e-12)
+    if r > 0.0:
+        assert play_moves_both_ways(v, r * (1 - 1e-9))
+        for s in np.linspace(0.0, r, 7)[:-1]:  # and so does every smaller one (monotone in r)
+            assert play_moves_both_ways(v, s)
+    else:
+        assert not play_moves_both_ways(v, 1e-9 * max(half, 1.0))
 
 
 def test_the_largest_loop_spans_an_interrupted_leg():
     # 10 -> 6 -> 7 -> 1: the 10 -> 1 leg (9 V, interrupted by a 1 V loop) reverses operators up to 4.5 V
-    assert largest_loop_threshold(np.array([0.0, 10.0, 6.0, 7.0, 1.0])) == pytest.approx(4.5, abs=0.01)
+    assert largest_loop_threshold(np.array([0.0, 10.0, 6.0, 7.0, 1.0])) == 4.5
     assert largest_loop_threshold(np.array([0.0, 1.0, 2.0])) == 0.0  # never reverses
 
 
@@ -82,7 +86,8 @@ def test_a_model_fitted_on_small_loops_follows_a_full_range_cycle(index, most):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         fit = ph.fit_model(train, kind="auto")
-    e = fit.residual(test.u, test.y, stage.dt)
+    with pytest.warns(ExtrapolationWarning, match="closes loops of up to"):  # and it is said
+        e = fit.residual(test.u, test.y, stage.dt)
     rms = 100.0 * float(np.sqrt(np.mean(e[e.size // 3:] ** 2))) / float(np.ptp(test.y))
     assert rms < most, (stage.name, fit.info["chosen"], rms)
     assert any("largest loop spans" in w for w in fit.warnings), fit.warnings
@@ -152,3 +157,48 @@ def test_a_record_that_never_reverses_keeps_its_thresholds():
         assert np.all(np.diff(fit.model.static.thresholds) > 0)
         fit = ph.fit_model(ds, kind="prandtl-ishlinskii", delay=0)
     assert any("never reverses" in w for w in fit.warnings), fit.warnings
+
+
+def riding(lo, hi, dt, frac=0.2, cycles=12, f=4.0):
+    """Cycles of ``frac`` of the range whose centre moves from the bottom to the top: small loops only."""
+    t = np.arange(int(round(cycles / f / dt))) * dt
+    a = 0.5 * frac * (hi - lo)
+    centre = lo + a + (hi - lo - 2 * a) * t / t[-1]
+    return centre - a * np.cos(2 * np.pi * f * t)
+
+
+def test_predicting_larger_loops_than_the_record_held_is_said(tmp_path, capsys):
+    from piezohyst.cli import main
+
+    stage = zoo(seed=0)[0]
+    lo, hi = stage.u_range
+    small = stage.excite(riding(lo, hi, stage.dt))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = ph.fit_model(small, kind="prandtl-ishlinskii")
+    assert fit.largest_loop == pytest.approx(2 * largest_loop_threshold(small.u[: fit.n_samples + fit.delay]))
+    assert fit.largest_loop < 0.5 * (hi - lo) and fit.summary()["largest_loop_V"] == fit.largest_loop
+    full = ph.sinusoid(1.0, 2, lo, lo + 0.9 * (hi - lo), stage.dt)  # within the identified range
+    with pytest.warns(ExtrapolationWarning, match="closes loops of up to"):
+        fit.predict(full, stage.dt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # its own kind of input: nothing to say
+        fit.predict(riding(lo, hi, stage.dt, frac=0.18, f=3.0), stage.dt)
+    # the model file keeps it, and a command table that needs larger loops says so
+    rec = tmp_path / "small.csv"
+    np.savetxt(rec, np.column_stack([small.t, small.u, small.y]), delimiter=",", header="t,u,y", comments="")
+    assert main(["identify", str(rec), "--model", "pi", "-o", str(tmp_path / "m.json")]) == 0
+    doc = json.loads((tmp_path / "m.json").read_text())
+    assert doc["fit"]["largest_loop_V"] < 0.5 * (hi - lo)
+    capsys.readouterr()
+    ref = tmp_path / "ref.csv"
+    y_lo, y_hi = float(np.percentile(small.y, 10)), float(np.percentile(small.y, 90))
+    t = np.arange(int(1 / stage.dt)) * stage.dt
+    np.savetxt(ref, np.column_stack([t, 0.5 * (y_lo + y_hi) - 0.5 * (y_hi - y_lo) * np.cos(2 * np.pi * t)]),
+               delimiter=",", header="t,x", comments="")
+    code = main(["compensate", "--model", str(tmp_path / "m.json"), "--reference", str(ref), "--u-min", str(lo),
+                 "--u-max", str(hi), "--clip", "-o", str(tmp_path / "cmd.csv"), "--json"])
+    assert code == 0
+    said = capsys.readouterr()
+    assert any("closes loops of up to" in w for w in json.loads(said.out)["warnings"])
+    assert "warning: the command closes loops of up to" in said.err

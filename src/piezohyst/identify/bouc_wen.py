@@ -16,6 +16,7 @@ import numpy as np
 
 from .._validation import FitError, FloatArray, as_scalar, as_signal
 from ..models.bouc_wen import BoucWen, bw_swarm_rmse
+from ..models.play import largest_loop_threshold
 from ..pso import pso_minimize
 from .result import FitResult, paired_signals as _pair, unpack_data
 
@@ -159,7 +160,8 @@ def fit_bouc_wen(
     return FitResult(model=model, rmse=rmse, method=method, n_samples=int(us.size),
                      time_s=time.perf_counter() - t0, nit=int(res.nit), nfev=nfev,
                      history=res.history, message=res.message, delay=int(delay),
-                     sensitivity=sens, info=info, input_range=(float(us.min()), float(us.max())))
+                     sensitivity=sens, info=info, input_range=(float(us.min()), float(us.max())),
+                     largest_loop=2.0 * largest_loop_threshold(us))
 
 
 def _polish_bouc_wen(x0: FloatArray, lo: FloatArray, hi: FloatArray, u: FloatArray, y_m: FloatArray,

@@ -41,7 +41,7 @@ from ..models.asymmetric_pi import AsymmetricPI, OutputMap
 from ..models.bouc_wen_hysteresis import BoucWenHysteresis, max_unit_slope, unit_hysteresis
 from ..models.duhem import GeneralizedDuhem, duhem_columns
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
-from ..models.play import play_outputs_strided_into
+from ..models.play import largest_loop_threshold, play_moves_both_ways, play_outputs_strided_into
 from ..models.preisach import Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs_into
 from ..models.rate import RateDependent, first_order_lag, lag_factor
 from .lsq import bounded_lstsq_gram
@@ -64,52 +64,6 @@ PREISACH_STRIP_RIDGE = 1e-8
 #: A record whose largest loop is below this share of its span (one that never reverses, or only
 #: by noise) keeps its P-I thresholds as they are (:func:`loop_thresholds`).
 LOOPS_TOO_SMALL = 0.05
-
-
-@njit
-def _play_moves_both_ways(v: FloatArray, r: float) -> bool:  # pragma: no cover - compiled
-    """Whether the play operator of threshold ``r``, from rest (``z = 0``), moves both up and down over ``v``."""
-    z = 0.0
-    up = down = False
-    for x in v:
-        if x - r > z:
-            z = x - r
-            up = True
-        elif x + r < z:
-            z = x + r
-            down = True
-        if up and down:
-            return True
-    return False
-
-
-def largest_loop_threshold(v: FloatArray, *, rtol: float = 1e-3) -> float:
-    """Half the largest loop the input ``v`` closes: the largest play threshold ``r`` whose operator
-    (eq. 1, from rest) moves both up and down over ``v`` (to ``rtol`` of half the span).
-
-    A play operator of threshold ``r`` reverses only where the input travels ``2 r`` against its
-    last direction. Over a record whose loops are all smaller than its span (a multisine, a random
-    walk, small strokes around a working point) every operator above this threshold follows the
-    input's running extreme and nothing else: their weights are not identified by the record, yet
-    a full-stroke cycle reverses them. ``0`` for an input that never reverses.
-
-    >>> round(largest_loop_threshold(np.array([0.0, 10.0, 4.0, 8.0])), 2)  # the 10 -> 4 leg: a loop of 6
-    3.0
-    """
-    x = np.ascontiguousarray(v, dtype=np.float64)
-    half = 0.5 * float(np.ptp(x)) if x.size else 0.0
-    if half <= 0.0:
-        return 0.0
-    lo, hi = 0.0, half  # moves both ways at lo (the input reverses), never at half (one leg at most)
-    if not _play_moves_both_ways(x, 0.0):
-        return 0.0
-    while hi - lo > rtol * half:
-        mid = 0.5 * (lo + hi)
-        if _play_moves_both_ways(x, mid):
-            lo = mid
-        else:
-            hi = mid
-    return lo
 
 
 def loop_thresholds(r: FloatArray, v: FloatArray) -> tuple[FloatArray, float | None]:
@@ -141,7 +95,7 @@ def _below_half_span(r: FloatArray, v: FloatArray) -> tuple[FloatArray, float | 
     rr = np.asarray(r, dtype=np.float64)
     half = 0.5 * float(np.ptp(x)) if x.size else 0.0
     inside = rr[rr < half]
-    if inside.size == 0 or _play_moves_both_ways(x, float(inside.max())):
+    if inside.size == 0 or play_moves_both_ways(x, float(inside.max())):
         return inside, None
     cap = largest_loop_threshold(x)
     return inside, (cap if cap > LOOPS_TOO_SMALL * half else None)
@@ -810,7 +764,8 @@ def fit_structure(u: FloatArray, y: FloatArray, dt: float | None, st: Structure,
     info.update({"structure": st.to_dict(), "label": st.label()})
     fit = FitResult(model=model, rmse=rmse, method=f"bounded least squares ({st.label()})",
                     n_samples=int(n_fit - d), time_s=time.perf_counter() - t0, delay=int(d), info=info,
-                    input_range=(float(u[:n_fit].min()), float(u[:n_fit].max())))
+                    input_range=(float(u[:n_fit].min()), float(u[:n_fit].max())),
+                    largest_loop=2.0 * largest_loop_threshold(u[:n_fit]))
     inst = _instantaneous_min_slope(model)
     if info["floor_at_margin"] and inst is not None and inst <= 2.0 * margin:
         fit.warnings.append(

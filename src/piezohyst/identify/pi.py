@@ -26,10 +26,11 @@ import numpy as np
 from .._numba import njit
 from .._validation import FloatArray, as_scalar
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
-from ..models.play import GramStats, _gram_stats, default_chunk_rows, pi_gram, pi_simulate_strict, play_outputs
+from ..models.play import (GramStats, _gram_stats, default_chunk_rows, largest_loop_threshold, pi_gram,
+                           pi_simulate_strict, play_outputs)
 from ..pso import pso_minimize, swarm_best_update, swarm_move
 from .lsq import bounded_lstsq_gram, bounded_lstsq_gram_many
-from .linear import largest_loop_threshold, unreversed_thresholds
+from .linear import unreversed_thresholds
 from .result import FitResult, paired_signals as _pair, unpack_data
 
 
@@ -324,5 +325,6 @@ def fit_pi(
     return FitResult(model=model, rmse=rmse, method=method, n_samples=int(us.size),
                      time_s=time.perf_counter() - t0, nit=nit, nfev=nfev, history=history,
                      message=message, delay=int(delay), info=info, warnings=notes,
-                     input_range=(float(us.min()), float(us.max())))
+                     input_range=(float(us.min()), float(us.max())),
+                     largest_loop=2.0 * largest_loop_threshold(us))
 

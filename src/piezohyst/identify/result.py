@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from .._validation import FloatArray, as_signal
+from ..models.play import largest_loop_threshold
 
 
 #: A record's input may go this share of the identified input span beyond it before
@@ -38,6 +39,31 @@ def beyond_identified(u_min: float, u_max: float, identified: Any, what: str = "
         return None
     return (f"{what} goes {' and '.join(parts)}, beyond the {lo:.4g} .. {hi:.4g} V the model was identified "
             f"on: there it extrapolates (identify it on a record that covers the range in use)")
+
+
+#: An input's largest loop may exceed the largest one the model was identified on by this share of
+#: it before :meth:`FitResult.predict` (and ``piezohyst compensate``) say that the loops are extrapolated.
+LOOP_TOLERANCE = 0.1
+
+
+def larger_loops(u: Any, identified: Any, what: str = "the input") -> str | None:
+    """A sentence saying that ``u`` closes larger loops than the record the model was identified
+    on (``identified``: that record's largest loop, V, twice
+    :func:`~piezohyst.models.play.largest_loop_threshold`), or None when they stay within
+    :data:`LOOP_TOLERANCE` of it (or nothing is known of it)."""
+    if identified is None:
+        return None
+    uu = np.asarray(u, dtype=np.float64)
+    if uu.size < 2 or not np.all(np.isfinite(uu)):
+        return None
+    loop = 2.0 * largest_loop_threshold(uu)
+    known = float(identified)
+    if not loop > known * (1.0 + LOOP_TOLERANCE) + 1e-12 * max(float(np.ptp(uu)), 1.0):
+        return None
+    return (f"{what} closes loops of up to {loop:.4g} V, larger than the largest of the record the model was "
+            f"identified on ({known:.4g} V): operators (hysterons) that only larger loops reverse were not "
+            f"identified, and there the model's hysteresis is extrapolated (identify it on a record with loops "
+            f"as large as those in use, e.g. a cycle over the whole range)")
 
 
 @dataclass
@@ -73,6 +99,10 @@ class FitResult:
     input_range : (float, float) or None
         The smallest and largest input (V) of the record the model was fitted on:
         :meth:`predict` warns (:class:`ExtrapolationWarning`) beyond it.
+    largest_loop : float or None
+        The largest loop (V) the input of that record closes (twice
+        :func:`~piezohyst.models.play.largest_loop_threshold`): :meth:`predict` warns
+        (:class:`ExtrapolationWarning`) where an input closes larger ones.
     """
 
     model: Any
@@ -89,6 +119,7 @@ class FitResult:
     info: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     input_range: tuple[float, float] | None = None
+    largest_loop: float | None = None
 
     @property
     def poorly_constrained(self) -> list[str]:
@@ -117,20 +148,24 @@ class FitResult:
         out["warnings"] = list(self.warnings)
         if self.input_range is not None:
             out["input_range_V"] = [float(self.input_range[0]), float(self.input_range[1])]
+        if self.largest_loop is not None:
+            out["largest_loop_V"] = float(self.largest_loop)
         return out
 
     def predict(self, u: Any, dt: float | None = None) -> FloatArray:
         """The fitted model's output for ``u`` in µm (the unit of ``y``); an input beyond
-        :attr:`input_range` (by more than 2 % of it) is warned about (:class:`ExtrapolationWarning`)."""
+        :attr:`input_range` (by more than 2 % of it), or within it one that closes larger loops
+        than :attr:`largest_loop` (by more than 10 % of it), is warned about (:class:`ExtrapolationWarning`)."""
         out = self.model.predict(u, dt)
-        if self.input_range is not None:
-            uu = np.asarray(u, dtype=np.float64)
-            if uu.size and np.all(np.isfinite(uu)):
-                said = beyond_identified(float(uu.min()), float(uu.max()), self.input_range)
-                if said:
-                    import warnings
+        uu = np.asarray(u, dtype=np.float64)
+        if uu.size and np.all(np.isfinite(uu)):
+            import warnings
 
-                    warnings.warn(said, ExtrapolationWarning, stacklevel=2)
+            # larger loops within the range are news; beyond it, the range's warning says it all
+            said = (beyond_identified(float(uu.min()), float(uu.max()), self.input_range)
+                    or larger_loops(uu, self.largest_loop))
+            if said:
+                warnings.warn(said, ExtrapolationWarning, stacklevel=2)
         return out  # type: ignore[no-any-return]
 
     def residual(self, u: Any, y: Any, dt: float | None = None) -> FloatArray:

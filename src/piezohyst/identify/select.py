@@ -73,13 +73,12 @@ from .._blas import with_single_threaded_blas
 from .._validation import FloatArray, as_scalar
 from ..models.base import kind_class
 from ..models.duhem import MAX_RANGE_SPANS, reaches_beyond_knots
-from ..models.play import play_operator
+from ..models.play import largest_loop_threshold, play_operator
 from ..models.rate import first_order_lag
 from .glitches import SPAN_SHARE as GLITCH_SPAN_SHARE
 from .glitches import bridge_glitches, find_glitches
 from .monotone import range_warnings, rises_with_input, turn_indices
-from .linear import (DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, largest_loop_threshold,
-                     mean_slope, prepare)
+from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals, unpack_data
 
 #: Relative drop of the hold-out error a more complex candidate must bring to be preferred.
@@ -1307,7 +1306,7 @@ def _residual_by_rate(du: FloatArray, resid: FloatArray, span: float) -> tuple[f
 
 
 #: The small-loops warning (:func:`_quality_warnings`): the input's largest loop
-#: (:func:`~piezohyst.identify.linear.largest_loop_threshold`, twice) below this share of its range.
+#: (:func:`~piezohyst.models.play.largest_loop_threshold`, twice) below this share of its range.
 SMALL_LOOPS = 0.9
 
 #: Share of the input's range a turning point may lie from its end and still count as at the end

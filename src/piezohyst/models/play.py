@@ -1064,3 +1064,62 @@ def _gram_stats(us: FloatArray, r: FloatArray, ys: FloatArray, d_arr: Any, z: Fl
     return GramStats(delays=d_arr, n_samples=n - d_arr, gram=out_g, zty=out_b, zsum=out_s,
                      ysum=ysum, yty=yty), at_common
 
+
+@njit
+def play_moves_both_ways(v: FloatArray, r: float) -> bool:  # pragma: no cover - compiled
+    """Whether the play operator of threshold ``r``, from rest (``z = 0``), moves both up and down over ``v``."""
+    z = 0.0
+    up = down = False
+    for x in v:
+        if x - r > z:
+            z = x - r
+            up = True
+        elif x + r < z:
+            z = x + r
+            down = True
+        if up and down:
+            return True
+    return False
+
+
+def largest_loop_threshold(v: FloatArray) -> float:
+    """Half the largest loop the input ``v`` closes: the supremum of the play thresholds ``r`` whose
+    operator (eq. (1), from rest) moves both up and down over ``v`` (:func:`play_moves_both_ways`
+    for every smaller ``r``, for none larger), in one pass.
+
+    A play operator of threshold ``r`` reverses only where the input travels ``2 r`` against its
+    last direction. Over a record whose loops are all smaller than its span (a multisine, a random
+    walk, small strokes around a working point) every operator above this threshold follows the
+    input's running extreme and nothing else: their weights are not identified by the record, yet
+    a full-stroke cycle reverses them. ``0`` for an input that never reverses.
+
+    From rest (``z = 0``) the operator moves both ways exactly where the input rises above ``r``
+    and falls below ``-r`` (in either order), or falls ``2 r`` below its running maximum once that
+    is above ``r``, or rises ``2 r`` above its running minimum once that is below ``-r``: the
+    supremum is the largest of those three bounds over the record.
+
+    >>> largest_loop_threshold(np.array([0.0, 10.0, 4.0, 8.0]))  # the 10 -> 4 leg: a loop of 6
+    3.0
+    """
+    x = np.ascontiguousarray(v, dtype=np.float64)
+    return float(_largest_loop_threshold(x)) if x.size else 0.0
+
+
+@njit
+def _largest_loop_threshold(v: FloatArray) -> float:  # pragma: no cover - compiled
+    hi = lo = v[0]  # the running maximum and minimum before the sample
+    best = 0.0
+    for i in range(1, v.shape[0]):
+        x = v[i]
+        fall = min(0.5 * (hi - x), hi)  # down 2 r from the running maximum, once above r
+        rise = min(0.5 * (x - lo), -lo)  # up 2 r from the running minimum, once below -r
+        if fall > best:
+            best = fall
+        if rise > best:
+            best = rise
+        if x > hi:
+            hi = x
+        if x < lo:
+            lo = x
+    both = min(max(hi, 0.0), max(-lo, 0.0))  # above r and below -r, in either order
+    return max(best, both)
