@@ -312,12 +312,13 @@ def fit_pi(
                                     np.array(model.initial_state), model.input_offset, model.offset)
     rmse = float(np.sqrt(np.mean(resid**2)))
     notes = []
+    loop = 2.0 * largest_loop_threshold(us)
     unreversed = unreversed_thresholds(model.thresholds, us)
     if unreversed.size:
         notes.append(f"{unreversed.size} operator{'s' if unreversed.size > 1 else ''} (threshold "
                      f"{unreversed.min():.4g}{'..' + format(unreversed.max(), '.4g') if unreversed.size > 1 else ''}) "
                      f"{'are' if unreversed.size > 1 else 'is'} never reversed by this record (its largest loop is "
-                     f"{2 * largest_loop_threshold(us):.4g} of its {float(np.ptp(us)):.4g} range), yet a cycle over "
+                     f"{loop:.4g} of its {float(np.ptp(us)):.4g} range), yet a cycle over "
                      f"the range reverses {'them' if unreversed.size > 1 else 'it'}: only the way from rest sets "
                      f"{'their weights' if unreversed.size > 1 else 'its weight'}, and such a cycle may be predicted "
                      f"poorly. Identify on a record with a cycle over the whole range, or with fit_model, which "
@@ -326,5 +327,5 @@ def fit_pi(
                      time_s=time.perf_counter() - t0, nit=nit, nfev=nfev, history=history,
                      message=message, delay=int(delay), info=info, warnings=notes,
                      input_range=(float(us.min()), float(us.max())),
-                     largest_loop=2.0 * largest_loop_threshold(us))
+                     largest_loop=loop)
 

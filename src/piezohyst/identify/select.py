@@ -1268,7 +1268,7 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
         out.append(f"the input reverses only at the ends of its range ({ends} reversals): loops inside it (partial "
                    f"strokes) are not identified and the model may follow them poorly; a record that also reverses "
                    f"at smaller amplitudes (a decaying sinusoid, commissioning_excitation) identifies them")
-    loop = 2.0 * largest_loop_threshold(uu) if turns else 0.0
+    loop = fit.largest_loop if fit.largest_loop is not None else 2.0 * largest_loop_threshold(uu)
     if turns and loop < SMALL_LOOPS * (hi - lo):
         out.append(f"the input's largest loop spans {loop:.4g} V of its {hi - lo:.4g} V range (it never travels further "
                    f"against its last direction): loops larger than that (a cycle over the whole range) are "
