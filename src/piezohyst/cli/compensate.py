@@ -101,25 +101,20 @@ def load_reference(path: str, ref_col: Any, t_col: Any, fs: float | None) -> tup
     return t, ref
 
 
-def _warn_if_extrapolating(doc: dict[str, Any], u: Any) -> list[str]:
+def _warn_if_extrapolating(doc: dict[str, Any], u: Any) -> str | None:
     """Warn when the commands leave the input range the model file (``doc``, its document) says
     it was identified on (its ``fit.input_range_V``), or within it close larger loops than its
-    record did (``fit.largest_loop_V``; files without them say nothing); the warnings given."""
+    record did (``fit.largest_loop_V``; files without them say nothing); the warning, or None."""
     import warnings
 
-    import numpy as np
-
-    from ..identify.result import ExtrapolationWarning, beyond_identified, larger_loops
+    from ..identify.result import ExtrapolationWarning, extrapolation
 
     fit = doc.get("fit") or {}
     loop = fit.get("largest_loop_V")
-    # larger loops within the range are news; beyond it, the range's warning says it all
-    one = (beyond_identified(float(np.min(u)), float(np.max(u)), fit.get("input_range_V"), "the command")
-           or larger_loops(u, loop if isinstance(loop, (int, float)) and not isinstance(loop, bool) else None,
-                           "the command"))
-    said = [one] if one else []
-    for s in said:
-        warnings.warn(s, ExtrapolationWarning, stacklevel=2)
+    said = extrapolation(u, fit.get("input_range_V"),
+                         loop if isinstance(loop, (int, float)) and not isinstance(loop, bool) else None, "the command")
+    if said:
+        warnings.warn(said, ExtrapolationWarning, stacklevel=2)
     return said
 
 
@@ -194,7 +189,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
                            "largest_step_V": float(np.max(np.abs(np.diff(u)))) if u.size > 1 else 0.0}
     if periodic_info is not None:
         res["periodic"] = periodic_info
-    res["warnings"] = list(extrapolating)
+    res["warnings"] = [extrapolating] if extrapolating else []
     if args.json:
         print_json(res)
     else:

@@ -66,6 +66,15 @@ def larger_loops(u: Any, identified: Any, what: str = "the input") -> str | None
             f"as large as those in use, e.g. a cycle over the whole range)")
 
 
+def extrapolation(u: Any, input_range: Any, largest_loop: Any, what: str = "the input") -> str | None:
+    """What ``u`` asks of a model beyond its record: leaving its ``input_range``
+    (:func:`beyond_identified`), or within it closing loops larger than its ``largest_loop``
+    (:func:`larger_loops`; beyond the range the range's sentence says it all); None when neither.
+    ``u`` is finite."""
+    uu = np.asarray(u, dtype=np.float64)
+    return beyond_identified(float(uu.min()), float(uu.max()), input_range, what) or larger_loops(uu, largest_loop, what)
+
+
 @dataclass
 class FitResult:
     """What an identification produced.
@@ -161,9 +170,7 @@ class FitResult:
         if uu.size and np.all(np.isfinite(uu)):
             import warnings
 
-            # larger loops within the range are news; beyond it, the range's warning says it all
-            said = (beyond_identified(float(uu.min()), float(uu.max()), self.input_range)
-                    or larger_loops(uu, self.largest_loop))
+            said = extrapolation(uu, self.input_range, self.largest_loop)
             if said:
                 warnings.warn(said, ExtrapolationWarning, stacklevel=2)
         return out  # type: ignore[no-any-return]
