@@ -143,6 +143,45 @@ class SaturatedPI:
         return self.stroke * (1.0 - math.exp(-self.k * p)) / (1.0 - math.exp(-self.k))
 
 
+class JilesAthertonLike:
+    """The Jiles-Atherton structure (with its mean-field coupling left out, ``alpha = 0``): an
+    irreversible part ``z`` that moves towards the anhysteretic curve ``an(v)`` (a ``tanh`` of
+    steepness ``b`` over the range) only while the input moves that way,
+    ``dz = (an(v) - z) |dx| / k`` if ``(an(v) - z) dx > 0`` else 0 (``x = v`` over the range:
+    the usual fix that keeps the susceptibility positive), plus a reversible share ``c``:
+    ``y = stroke (c an(v) + (1 - c) z)``. Its minor loops do not close: cycled between two inputs
+    inside the range, the loop climbs from cycle to cycle (accommodation) instead of returning to
+    its turning points, which neither a Preisach nor a P-I model can do. Written after the zoo,
+    the census and every default, for ``tests/test_accommodation.py``."""
+
+    def __init__(self, v_lo: float, v_hi: float, stroke_um: float, k: float = 0.2, c: float = 0.4, b: float = 1.8):
+        self.lo, self.hi, self.stroke, self.k, self.c, self.b = v_lo, v_hi, stroke_um, k, c, b
+        self.reset()
+
+    def anhysteretic(self, v: float) -> float:
+        x = 2.0 * (v - self.lo) / (self.hi - self.lo) - 1.0
+        return 0.5 * (1.0 + math.tanh(self.b * x) / math.tanh(self.b))
+
+    def reset(self) -> None:
+        self.v = min(max(0.0, self.lo), self.hi)
+        self.z = self.anhysteretic(self.v)
+
+    def step(self, v: float) -> float:
+        dx = (v - self.v) / (self.hi - self.lo)
+        self.v = v
+        an = self.anhysteretic(v)
+        if (an - self.z) * dx > 0.0:
+            self.z += (an - self.z) * abs(dx) / self.k
+        return self.stroke * (self.c * an + (1.0 - self.c) * self.z)
+
+
+def jiles_atherton_stage(seed: int = 0) -> Stage:
+    """A stage around :class:`JilesAthertonLike`, in the census's chain (not one of its seven)."""
+    return Stage("Jiles-Atherton (no return-point memory), 10 kHz, 0..150 V, 10 um, delay 2",
+                 JilesAthertonLike(0.0, 150.0, 10.0), 1e-4, (0.0, 150.0), tau_amp=2e-4, kv=((0.05, 0.01),),
+                 fn_hz=2500.0, zeta=0.05, noise_um=0.003, delay_samples=2, seed=21 + seed)
+
+
 def census(seed: int = 0) -> list[Stage]:
     """The seven census stages (module docstring); ``seed`` adds to each stage's noise seed."""
     return [
