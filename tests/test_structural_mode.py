@@ -13,7 +13,7 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.signal import lfilter
 
@@ -44,6 +44,7 @@ def _pi_record(dt):
 
 @settings(max_examples=12, deadline=None)
 @given(f=st.floats(40.0, 800.0), zeta=st.sampled_from(MODE_DAMPINGS[:4]), dt=st.sampled_from([1e-4, 2e-4]))
+@example(f=84.0, zeta=0.005, dt=1e-4)  # found by a clean clone's run: the mode rings where the motion has no power
 def test_a_mode_behind_a_hysteresis_is_found(f, zeta, dt):
     p = _pi_record(dt)
     b, a = second_order_filter(f, zeta, dt)

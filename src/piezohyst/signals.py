@@ -248,7 +248,7 @@ def lightly_damped_mode(y: Any, prediction: Any, dt: float, *, f_min: float,
     compared with the prediction passed through ``w^2 / (s^2 + 2 zeta w s + w^2)``
     (:func:`second_order_filter`), at the :data:`MODE_CANDIDATES` highest peaks of the empirical
     transfer function from the prediction to what it leaves (``R - 1``: Welch cross-spectrum over
-    auto-spectrum) and at the best of a grid of steps of :data:`MODE_FREQUENCY_STEP` squared (with
+    auto-spectrum), at those of what it leaves (where the mode rings) and at the best of a grid of steps of :data:`MODE_FREQUENCY_STEP` squared (with
     every other damping ratio), with the damping ratios :data:`MODE_DAMPINGS`, the best pair then refined
     (Nelder-Mead on their logarithms, within 10 %); the pair that leaves
     the least mean-square error is reported if it explains at least :data:`MODE_MIN_SHARE` of what
@@ -313,9 +313,16 @@ def lightly_damped_mode(y: Any, prediction: Any, dt: float, *, f_min: float,
     inside = np.flatnonzero((freqs >= f_min) & (freqs <= f_max))
     if inside.size < 3:
         return None
-    peaks, _ = find_peaks(np.concatenate([[0.0], gain[inside], [0.0]]))
-    peaks = inside[peaks - 1]
-    candidates = [float(freqs[k]) for k in peaks[np.argsort(gain[peaks])[::-1][:MODE_CANDIDATES]]]
+    _, pee = welch(yy - pp, fs=1.0 / dt, nperseg=nper)
+
+    def highest_peaks(curve: FloatArray) -> list[float]:
+        found, _ = find_peaks(np.concatenate([[0.0], curve[inside], [0.0]]))
+        found = inside[found - 1]
+        return [float(freqs[k]) for k in found[np.argsort(curve[found])[::-1][:MODE_CANDIDATES]]]
+
+    # the transfer function's peaks, and the residual's own (a lightly damped mode rings at its
+    # frequency after every sharp turn, whether or not the motion has power there)
+    candidates = highest_peaks(gain) + highest_peaks(pee)
     # and the best of a blind grid (every other step of MODE_FREQUENCY_STEP): where the record's
     # motion has little power near the mode, its spectra say little
     coarse = MODE_FREQUENCY_STEP ** 2
