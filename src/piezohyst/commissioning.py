@@ -866,8 +866,9 @@ class CommissionedController:
         c_to_feedback = bool(learn and pid is not None and self.tuning is not None
                              and correction_into_feedback(self.tuning.ki, p * dt))
         sat = 0
-        learner = _Learning(p, dt, self.learning_gain, self._cutoff(per, dt),
-                            self._widest_band(per, dt))
+        # (the band only where learning runs: it may look for a structural mode, a search of its own)
+        learner = _Learning(p, dt, self.learning_gain, self._cutoff(per, dt) if learn else math.inf,
+                            self._widest_band(per, dt) if learn else math.inf)
 
         def fade(k: int) -> float:
             """The weight of the new correction at sample k while it takes over from the old one."""
@@ -985,7 +986,7 @@ class CommissionedController:
         d = self.delay
         idx = np.minimum(np.arange(n) + d, n - 1)
         ff = self.feedforward()
-        cutoff = self._cutoff(per, dt)
+        cutoff = self._cutoff(per, dt) if learning else math.inf  # nothing is learnt without learning
         corr = np.zeros(n)
         corr_period = np.zeros(per) if folded else None  # type: ignore[arg-type]
         plays: list[float] = []
