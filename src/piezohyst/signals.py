@@ -215,7 +215,8 @@ def noise_e_max(sigma: float, samples: int) -> float:
 MODE_DAMPINGS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
 #: Ratio between neighbouring natural frequencies of its grid (6 %).
 MODE_FREQUENCY_STEP = 1.06
-#: Peaks of the empirical transfer function that :func:`lightly_damped_mode` fits a mode at.
+#: Peaks of each spectrum (the transfer function's, the residual's) that
+#: :func:`lightly_damped_mode` fits a mode at.
 MODE_CANDIDATES = 3
 #: Share of what the model leaves of a record that a mode must explain to be reported: fitting
 #: two parameters to noise explains about 2 / N of it.
@@ -246,11 +247,14 @@ def lightly_damped_mode(y: Any, prediction: Any, dt: float, *, f_min: float,
 
     Output-error identification of one second-order mode after the model: the measured record is
     compared with the prediction passed through ``w^2 / (s^2 + 2 zeta w s + w^2)``
-    (:func:`second_order_filter`), at the :data:`MODE_CANDIDATES` highest peaks of the empirical
-    transfer function from the prediction to what it leaves (``R - 1``: Welch cross-spectrum over
-    auto-spectrum), at those of what it leaves (where the mode rings) and at the best of a grid of steps of :data:`MODE_FREQUENCY_STEP` squared (with
-    every other damping ratio), with the damping ratios :data:`MODE_DAMPINGS`, the best pair then refined
-    (Nelder-Mead on their logarithms, within 10 %); the pair that leaves
+    (:func:`second_order_filter`). Where to look: the :data:`MODE_CANDIDATES` highest peaks of
+    the empirical transfer function from the prediction to what it leaves (``R - 1``: Welch
+    cross-spectrum over auto-spectrum, at a resolution of a twentieth of ``f_min``), as many of
+    what it leaves (where a mode rings after every sharp turn, whether or not the motion has
+    power there), and the best of a grid of steps of :data:`MODE_FREQUENCY_STEP` squared; at
+    each, the damping ratios :data:`MODE_DAMPINGS`, the best pair then refined (Nelder-Mead on
+    their logarithms, within 10 %: a mode damped 1 % rings within 1 % of its frequency, finer
+    than any grid worth searching blindly). The pair that leaves
     the least mean-square error is reported if it explains at least :data:`MODE_MIN_SHARE` of what
     the prediction alone leaves (``explained``). An output-error fit is used, not an equation-error
     (ARX) one: on a record sampled far faster than it moves, an ARX model's autoregressive part
@@ -296,12 +300,7 @@ def lightly_damped_mode(y: Any, prediction: Any, dt: float, *, f_min: float,
         d = target - lfilter(b, a, moved)
         return float(np.dot(d, d)) / d.size
 
-    # where to look: the peaks of the empirical transfer function from the prediction to what it
-    # leaves (Welch cross-spectrum over auto-spectrum: R - 1 where the record's motion has power),
-    # at a resolution of a twentieth of f_min; at each, the damping ratios of the list, and the
-    # best pair refined (Nelder-Mead on the logarithms of frequency and damping, within 10 % and
-    # the list's range): a mode damped 1 % rings within 1 % of its frequency, finer than any grid
-    # worth searching blindly
+    # where to look (docstring)
     from scipy.optimize import minimize
     from scipy.signal import csd, find_peaks, welch
 
@@ -320,11 +319,9 @@ def lightly_damped_mode(y: Any, prediction: Any, dt: float, *, f_min: float,
         found = inside[found - 1]
         return [float(freqs[k]) for k in found[np.argsort(curve[found])[::-1][:MODE_CANDIDATES]]]
 
-    # the transfer function's peaks, and the residual's own (a lightly damped mode rings at its
-    # frequency after every sharp turn, whether or not the motion has power there)
     candidates = highest_peaks(gain) + highest_peaks(pee)
-    # and the best of a blind grid (every other step of MODE_FREQUENCY_STEP): where the record's
-    # motion has little power near the mode, its spectra say little
+    # and a blind grid's best (every other damping ratio): where the motion has little power near
+    # the mode and it rings little, the spectra say little
     coarse = MODE_FREQUENCY_STEP ** 2
     grid = np.geomspace(f_min, f_max, int(np.ceil(np.log(f_max / f_min) / np.log(coarse))) + 1)
     candidates.append(min((cost(float(f), z), float(f)) for z in MODE_DAMPINGS[1::2] for f in grid)[1])
