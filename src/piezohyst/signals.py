@@ -240,6 +240,48 @@ def second_order_filter(f_hz: float, zeta: float, dt: float) -> tuple[FloatArray
     return np.array([0.0, b1, b2]), np.array([1.0, -2.0 * e * c, e * e])
 
 
+def mode_inverse(y: Any, dt: float, f_hz: float, zeta: float, *, band_hz: float) -> FloatArray:
+    """``y`` through the inverse of the mode ``w^2 / (s^2 + 2 zeta w s + w^2)`` (``w = 2 pi
+    f_hz``) below ``band_hz``, and unchanged above it:
+    ``y + (2 zeta / w) y_s' + y_s'' / w^2``, where ``y_s`` is ``y`` low-passed at ``band_hz``
+    without phase (a second-order Butterworth filter run forwards and backwards) and the
+    derivatives are central differences. Non-causal: for a whole record or a reference known in
+    advance.
+
+    Two uses: what a hysteresis element ahead of the mode puts out, from a record measured after
+    it (``band_hz`` a few times ``f_hz``: the record's noise is amplified by ``(f / f_hz)^2`` up
+    to there); and the target a feedforward gives that element so that the mode's output follows
+    a reference (``band_hz`` below ``f_hz``: a step in the reference is not turned into a spike).
+
+    >>> import numpy as np
+    >>> from scipy.signal import lfilter
+    >>> dt = 1e-4
+    >>> t = np.arange(20000) * dt
+    >>> x = np.sin(2 * np.pi * 5.0 * t) ** 3
+    >>> b, a = second_order_filter(60.0, 0.01, dt)
+    >>> y = lfilter(b, a, x)  # x rings the mode; its inverse gives x back (half a sample late)
+    >>> bool(np.max(np.abs(mode_inverse(y, dt, 60.0, 0.01, band_hz=300.0) - x)[5000:]) < 0.01)
+    True
+    """
+    from scipy.signal import butter, sosfiltfilt
+
+    x = as_signal("y", y, min_length=3)
+    if not dt > 0.0 or not f_hz > 0.0 or not 0.0 < zeta < 1.0 or not band_hz > 0.0:
+        raise ValueError(f"mode_inverse needs dt, f_hz, band_hz > 0 and 0 < zeta < 1, got dt={dt!r}, "
+                         f"f_hz={f_hz!r}, zeta={zeta!r}, band_hz={band_hz!r}")
+    w = 2.0 * np.pi * float(f_hz)
+    fc = min(float(band_hz), 0.4 / dt)
+    sos = butter(2, fc, fs=1.0 / dt, output="sos")
+    # padded (odd extension: the value and the slope at each end go on) over two periods of the
+    # cut-off, so that the filter has settled where the record starts and ends
+    xs = sosfiltfilt(sos, x, padlen=min(x.size - 1, max(9, int(np.ceil(2.0 / (fc * dt))))))
+    d1 = np.gradient(xs, dt)
+    d2 = np.empty_like(xs)
+    d2[1:-1] = (xs[2:] - 2.0 * xs[1:-1] + xs[:-2]) / (dt * dt)
+    d2[0], d2[-1] = d2[1], d2[-2]
+    return x + (2.0 * zeta / w) * d1 + d2 / (w * w)
+
+
 def lightly_damped_mode(y: Any, prediction: Any, dt: float, *, f_min: float,
                         f_max: float) -> dict[str, float] | None:
     """A lightly damped structural mode between ``f_min`` and ``f_max`` (Hz) that a hysteresis
