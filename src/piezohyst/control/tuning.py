@@ -401,6 +401,30 @@ def _error_ripple(fbs: FloatArray, fb0: float, gain: float) -> float:
     return float(np.std(np.diff(half)))
 
 
+def ripple_frequency(fbs: FloatArray, fb0: float, dt: float) -> float | None:
+    """The frequency (Hz) at which the error ripples over the second half of a probe segment, read
+    off the integral feedback's outputs as :func:`_error_ripple` reads its size: the peak of the
+    spectrum of the error's sample-to-sample change (Hann window); None on too short a segment.
+    Where an oscillation grows under the loop, it is a resonance's frequency.
+
+    >>> import numpy as np
+    >>> dt = 1e-4
+    >>> k = np.arange(4000)
+    >>> fbs = np.cumsum(0.01 * np.sin(2 * np.pi * 60.0 * k * dt) * np.exp(k / 2000))
+    >>> round(ripple_frequency(fbs, 0.0, dt))
+    60
+    """
+    if fbs.size < 16 or not dt > 0:
+        return None
+    e = np.diff(np.concatenate([[fb0], fbs]))
+    d = np.diff(e[e.size // 2:])
+    spec = np.abs(np.fft.rfft((d - d.mean()) * np.hanning(d.size)))
+    if spec.size < 3:
+        return None
+    k = int(np.argmax(spec[1:])) + 1
+    return float(k / (d.size * dt))
+
+
 def answer_overshoot(answer: FloatArray) -> float:
     """How far the feedback's averaged answer to the probes (:func:`tune_integral_safely`, in
     units of the probe) overshoots the value it settles at (the mean of its last quarter), as a
@@ -627,6 +651,7 @@ def tune_integral_safely(
         for settle_anyway in (False, True):  # True: the second attempt of a trial stopped by an unsettled hold
             answers = []
             ringing: list[float] = []  # per probe segment: the error's sample-to-sample RMS, second half
+            ripple_hz: list[float | None] = []  # ... and the frequency it ripples at
             aborted = False
             integral0 = pid.integral
             state["u_lo"], state["u_hi"] = math.inf, -math.inf
@@ -661,6 +686,7 @@ def tune_integral_safely(
                 # the feedback cancels the probe: its answer runs from 0 towards 1 (of the probe)
                 answers.append(-sign * (fbs - fb0) / probe)
                 ringing.append(_error_ripple(fbs, fb0, ki * dt * volts_per_um))
+                ripple_hz.append(ripple_frequency(fbs, fb0, dt))
             if aborted:  # back to where the trial began, probe off, feedforward alone, and settle
                 pid.integral = integral0
                 pid.ki = 0.0
@@ -703,6 +729,8 @@ def tune_integral_safely(
                             "command_band_V": (state["u_lo"], state["u_hi"]),
                             "hold_error_um": offset, "settled_first": settle, "settled_on_retry": settle_anyway,
                             "ripple_over_noise": ripple, "ripple_growth": growth, "oscillation_grows": grows,
+                            # where it grows: the resonance's frequency, from the segment that rippled most
+                            "oscillation_hz": ripple_hz[int(np.argmax(ringing))] if grows else None,
                             "ripples": [r / ripple0 if ripple0 > 0 else 0.0 for r in ringing]})
         return ok
 
