@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 from scipy.signal import lfilter
 
 import piezohyst as ph
+from piezohyst.commissioning import AmplifierSlewWarning
 from piezohyst.signals import MODE_DAMPINGS, lightly_damped_mode, mode_inverse, second_order_filter
 from tests.plants.zoo import AsymmetricMaxwellSlip, Stage
 from tests.test_zoo import FBL_CYCLES, FBL_READ, steady_range
@@ -81,7 +82,7 @@ def test_the_mode_inverse_undoes_the_mode(f, zeta, dt, f_ref):
     steady = (t > t[-1] / 2) & (t < t[-1] - 2.0 / (3.0 * f))
     err = float(np.max(np.abs(back - late)[steady]))
     own = float(np.max(np.abs(y - late)[steady]))  # what the mode itself makes of the signal
-    assert err < 0.005 and err < 0.25 * own + 1e-4, (err, own)
+    assert err < 0.005 and err < 0.25 * own + 5e-4, (err, own)
 
 
 def low_mode_stage(seed: int = 0) -> Stage:
@@ -131,6 +132,40 @@ def test_the_feedforward_is_fitted_ahead_of_a_low_mode():
         res = ctl.track(ph.sinusoid(f, 3, a, b, stage.dt), feedback=False, learning=False,
                         period=int(round(1.0 / (f * stage.dt))))
         assert res.e_max_percent < 1.5, (f, res.e_max_percent)
+
+
+def unseen_mode_stage() -> Stage:
+    """Maxwell-slip elements on a 300 um stage with a 55 Hz mode at 1.4 %, sampled at 2 kHz (drawn
+    at random for a probe of low-mode stages, seed 628): its identification run shows no mode,
+    the model's lags take up the mode's slow effect, but the tuning's experiments see it grow."""
+    return Stage("Maxwell-slip, 55 Hz mode at 1.4 %, 2 kHz, 0..150 V, 300 um, delay 1",
+                 AsymmetricMaxwellSlip(150.0, 300.0), 5e-4, (0.0, 150.0), tau_amp=2e-4,
+                 kv=((0.05532145989596625, 0.026727389885899868),), fn_hz=55.188659295107,
+                 zeta=0.014117276313704408, noise_um=0.044770316889712614, delay_samples=1, seed=628)
+
+
+@pytest.mark.slow
+def test_learning_stays_below_a_resonance_the_tuning_saw_grow():
+    # before: learning's band at 5 Hz started at 75 Hz, above the mode, and feedback and learning
+    # ended 12 cycles at 11.45 % e_max (cycles of 13.7 and 15.5 % on the way; the feedforward
+    # alone 3.2 %); below half the frequency the tuning saw ripple (53 Hz): 2.57 %
+    stage = unseen_mode_stage()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ph.ClippingWarning)
+        # (the mode makes the fit worst where the command moves fastest, which commission reports)
+        warnings.simplefilter("ignore", AmplifierSlewWarning)
+        ctl = ph.commission(stage)
+    f = ctl.resonance_hz
+    assert ctl.resonance_seen and f is not None and 45.0 < f < 65.0, f
+    assert ctl.describe()["resonance_hz"] == f
+    a, b = steady_range(stage)
+    per = int(round(1.0 / (5.0 * stage.dt)))
+    out = ctl.track(ph.sinusoid(5.0, FBL_CYCLES, a, b, stage.dt), period=per)
+    assert out.info["learning_cutoff_hz"] <= 0.5 * f
+    cycles = 100.0 * np.array(out.info["cycle_e_max_um"]) / (b - a)
+    assert cycles.max() < 5.0, cycles
+    last = slice((FBL_CYCLES - FBL_READ) * per, FBL_CYCLES * per)
+    assert 100.0 * float(np.abs(out.error[last]).max()) / (b - a) <= 4.0
 
 
 @pytest.mark.slow

@@ -576,17 +576,18 @@ class CommissionedController:
         assert m is not None
         return mode_inverse(y, self.plant.dt, m["f_hz"], m["zeta"], band_hz=MODE_DECONVOLUTION_BAND * m["f_hz"])
 
-    def feedforward_targets(self, reference: Any) -> FloatArray:
+    def feedforward_targets(self, reference: Any, period: int | None = None) -> FloatArray:
         """What the feedforward is asked to produce so that the stage follows ``reference`` (µm):
         the reference itself, or where the model was fitted ahead of a structural mode
         (:attr:`output_mode`), the reference through the mode's inverse below
         :data:`MODE_BAND_SHARE` of its frequency (:func:`~piezohyst.signals.mode_inverse`; the
-        whole reference is known in advance)."""
+        whole reference is known in advance; ``period``: samples after which it repeats)."""
         r = as_signal("reference", reference, min_length=1)
         m = self.output_mode
         if m is None or r.size < 3:
             return r
-        return mode_inverse(r, self.plant.dt, m["f_hz"], m["zeta"], band_hz=MODE_BAND_SHARE * m["f_hz"])
+        return mode_inverse(r, self.plant.dt, m["f_hz"], m["zeta"], band_hz=MODE_BAND_SHARE * m["f_hz"],
+                            period=period)
 
     def noise_floor(self, result: TrackingResult) -> dict[str, float] | None:
         """What the sensor's noise alone would make of ``result``'s e_max: ``sensor_noise_um``
@@ -895,7 +896,7 @@ class CommissionedController:
         learn = learning and per is not None and n >= 2 * per
         p = int(per) if per is not None else 1  # the period where learning uses it
         ff = self.feedforward()
-        rt = self.feedforward_targets(r)
+        rt = self.feedforward_targets(r, per)
         pid = self.tuning.pid(dt) if (feedback and self.tuning is not None) else None
         # (the kernel follows the reference itself: not where the targets invert a mode)
         kernel = _loop_kernel_args(plant, ff, pid) if compiled and self.output_mode is None else None
@@ -1053,7 +1054,7 @@ class CommissionedController:
         d = self.delay
         idx = np.minimum(np.arange(n) + d, n - 1)
         ff = self.feedforward()
-        rt = self.feedforward_targets(r)
+        rt = self.feedforward_targets(r, per)
         cutoff = self._cutoff(per, dt) if learning else math.inf  # nothing is learnt without learning
         corr = np.zeros(n)
         corr_period = np.zeros(per) if folded else None  # type: ignore[arg-type]

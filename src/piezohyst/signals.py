@@ -240,13 +240,17 @@ def second_order_filter(f_hz: float, zeta: float, dt: float) -> tuple[FloatArray
     return np.array([0.0, b1, b2]), np.array([1.0, -2.0 * e * c, e * e])
 
 
-def mode_inverse(y: Any, dt: float, f_hz: float, zeta: float, *, band_hz: float) -> FloatArray:
+def mode_inverse(y: Any, dt: float, f_hz: float, zeta: float, *, band_hz: float,
+                 period: int | None = None) -> FloatArray:
     """``y`` through the inverse of the mode ``w^2 / (s^2 + 2 zeta w s + w^2)`` (``w = 2 pi
     f_hz``) below ``band_hz``, and unchanged above it:
     ``y + (2 zeta / w) y_s' + y_s'' / w^2``, where ``y_s`` is ``y`` low-passed at ``band_hz``
     without phase (a second-order Butterworth filter run forwards and backwards) and the
     derivatives are central differences. Non-causal: for a whole record or a reference known in
-    advance.
+    advance. Beyond its ends the signal is taken to go on as it would: one ``period`` (samples)
+    earlier and later where it repeats, else mirrored about each end (right for a record or a
+    reference that starts and ends at rest or at a turn; one that ends moving gets a kink there,
+    felt over two periods of ``band_hz``).
 
     Two uses: what a hysteresis element ahead of the mode puts out, from a record measured after
     it (``band_hz`` a few times ``f_hz``: the record's noise is amplified by ``(f / f_hz)^2`` up
@@ -260,7 +264,8 @@ def mode_inverse(y: Any, dt: float, f_hz: float, zeta: float, *, band_hz: float)
     >>> x = np.sin(2 * np.pi * 5.0 * t) ** 3
     >>> b, a = second_order_filter(60.0, 0.01, dt)
     >>> y = lfilter(b, a, x)  # x rings the mode; its inverse gives x back (half a sample late)
-    >>> bool(np.max(np.abs(mode_inverse(y, dt, 60.0, 0.01, band_hz=300.0) - x)[5000:]) < 0.01)
+    >>> back = mode_inverse(y, dt, 60.0, 0.01, band_hz=300.0)
+    >>> bool(np.max(np.abs(back - x)[5000:-100]) < 0.01)  # (y ends ringing: mirrored, a kink)
     True
     """
     from scipy.signal import butter, sosfiltfilt
@@ -272,13 +277,18 @@ def mode_inverse(y: Any, dt: float, f_hz: float, zeta: float, *, band_hz: float)
     w = 2.0 * np.pi * float(f_hz)
     fc = min(float(band_hz), 0.4 / dt)
     sos = butter(2, fc, fs=1.0 / dt, output="sos")
-    # padded (odd extension: the value and the slope at each end go on) over two periods of the
-    # cut-off, so that the filter has settled where the record starts and ends
-    xs = sosfiltfilt(sos, x, padlen=min(x.size - 1, max(9, int(np.ceil(2.0 / (fc * dt))))))
-    d1 = np.gradient(xs, dt)
-    d2 = np.empty_like(xs)
-    d2[1:-1] = (xs[2:] - 2.0 * xs[1:-1] + xs[:-2]) / (dt * dt)
-    d2[0], d2[-1] = d2[1], d2[-2]
+    # extended (docstring) by two periods of the cut-off, so that the filter has settled where
+    # the signal starts and ends
+    pad = max(9, int(np.ceil(2.0 / (fc * dt))))
+    n = x.size
+    if period is not None and 2 <= int(period) <= n:
+        p, i = int(period), np.arange(pad)
+        xp = np.concatenate([x[(i - pad) % p], x, x[n - p + i % p]])
+    else:
+        xp = np.pad(x, pad, mode="reflect")
+    xs = sosfiltfilt(sos, xp, padtype=None)
+    d1 = np.gradient(xs, dt)[pad:pad + n]
+    d2 = (xs[pad + 1:pad + n + 1] - 2.0 * xs[pad:pad + n] + xs[pad - 1:pad + n - 1]) / (dt * dt)
     return x + (2.0 * zeta / w) * d1 + d2 / (w * w)
 
 
