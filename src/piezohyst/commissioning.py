@@ -1149,7 +1149,15 @@ def _fit_ahead_of_mode(ctl: CommissionedController, refit: Callable[[FloatArray]
         return ctl
     say(f"fitting again ahead of a structural mode at {m['f_hz']:.4g} Hz ({100 * m['zeta']:.2g} % damping)")
     trial = replace(ctl, output_mode=dict(m), info=dict(ctl.info))
-    trial.fit = refit(trial._ahead_of_mode(np.asarray(ctl.identification.y, dtype=np.float64)))
+    ahead = trial._ahead_of_mode(np.asarray(ctl.identification.y, dtype=np.float64))
+    if not np.all(np.isfinite(ahead)):  # a record with gaps: the first model stands
+        return ctl
+    try:
+        trial.fit = refit(ahead)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # the first model stands, and says why
+        ctl.info["ahead_of_mode"] = {"f_hz": m["f_hz"], "zeta": m["zeta"], "kept": False,
+                                     "error": f"{type(exc).__name__}: {exc}"}
+        return ctl
     after = trial._identification_left
     rms_before = float(np.sqrt(np.mean(before**2)))
     rms_after = float(np.sqrt(np.mean(after**2))) if after is not None and np.all(np.isfinite(after)) else math.inf
