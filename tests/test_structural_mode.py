@@ -93,15 +93,20 @@ def low_mode_stage(seed: int = 0) -> Stage:
                  fn_hz=60.0, zeta=0.02, noise_um=0.05, delay_samples=1, seed=3 + seed)
 
 
-@pytest.mark.slow
-def test_learning_stays_below_a_low_mode():
-    # before: the band started at 50 Hz and doubled to 100 Hz when learning stalled; the last
-    # three of 12 cycles at 1 Hz read 5.6 % e_max (0.6 % before the widening), and at 5 Hz (a
-    # 75 Hz band from the start) 11.9 %, worse than the feedforward alone (5.0 %)
+@pytest.fixture(scope="module")
+def low_mode_controller() -> tuple[Stage, ph.CommissionedController]:
     stage = low_mode_stage()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ph.ClippingWarning)
-        ctl = ph.commission(stage)
+        return stage, ph.commission(stage)
+
+
+@pytest.mark.slow
+def test_learning_stays_below_a_low_mode(low_mode_controller):
+    # before: the band started at 50 Hz and doubled to 100 Hz when learning stalled; the last
+    # three of 12 cycles at 1 Hz read 5.6 % e_max (0.6 % before the widening), and at 5 Hz (a
+    # 75 Hz band from the start) 11.9 %, worse than the feedforward alone (5.0 %)
+    stage, ctl = low_mode_controller
     mode = ctl.structural_mode
     assert mode is not None and 50.0 < mode["f_hz"] < 72.0, mode
     assert ctl.describe()["structural_mode"] == mode
@@ -114,15 +119,12 @@ def test_learning_stays_below_a_low_mode():
 
 
 @pytest.mark.slow
-def test_the_feedforward_is_fitted_ahead_of_a_low_mode():
+def test_the_feedforward_is_fitted_ahead_of_a_low_mode(low_mode_controller):
     # before: the model was fitted to the record with the mode's ringing in it (its delay 7
     # samples where the stage has 1 + the amplifier's lag), and the feedforward alone missed by
     # 2.47 / 3.47 / 4.97 % e_max at 1 / 3 / 5 Hz; fitted ahead of the mode and inverting it:
     # 0.14 / 0.28 / 0.88 %
-    stage = low_mode_stage()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ph.ClippingWarning)
-        ctl = ph.commission(stage)
+    stage, ctl = low_mode_controller
     assert ctl.output_mode is not None and ctl.describe()["feedforward_inverts_mode"]
     ahead = ctl.info["ahead_of_mode"]
     assert ahead["kept"] and ahead["rmse_after_um"] < ahead["rmse_before_um"]
