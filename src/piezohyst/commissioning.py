@@ -798,6 +798,9 @@ class CommissionedController:
         """
         if self.output_mode is not None:  # the model is fitted ahead of it
             return self.output_mode
+        if "structural_mode" in self.fit.info:  # the fit's own search, over the same band
+            found = self.fit.info["structural_mode"]
+            return dict(found) if found else None
         left = self._identification_left
         f_hi = (self.fit.info.get("search") or {}).get("f_hi_hz")
         dt = getattr(self.plant, "dt", None)

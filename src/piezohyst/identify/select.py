@@ -1257,6 +1257,12 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
             f"record")
         out.append(by_rate["warning"])
     fit.info["residual_by_rate"] = by_rate
+    mode = _structural_mode(fit, y[d:] if d else y, pred[: pred.size - d] if d else pred, dt)
+    if mode is not None and mode["explained"] >= MODE_WARN_SHARE:
+        out.append(f"what the model leaves rings at {mode['f_hz']:.4g} Hz: a lightly damped mode ({100 * mode['zeta']:.2g} % "
+                   f"damping; {100 * mode['explained']:.0f} % of the residual) that no model kind here has, and the fitted "
+                   "delay and lags bend towards it. commission() fits its model ahead of such a mode and inverts it "
+                   "(CommissionedController.output_mode); a record that turns more gently rings it less")
     out += range_warnings(uu, y[d:] if d else y)
     turns, lo, hi, band = _input_reversals(uu)
     if not turns:
@@ -1280,6 +1286,29 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
                    f"delay and lags) turns: no monotone model represents that; the compensator cannot cancel it, "
                    f"feedback must")
     return out
+
+
+#: The structural-mode search (:func:`_structural_mode`) looks up to this fraction of the sample
+#: rate (twice the widest band commissioning's learning may use) ...
+MODE_SEARCH_TOP = 0.1
+#: ... and a mode that explains at least this share of the residual is a fit warning.
+MODE_WARN_SHARE = 0.1
+
+
+def _structural_mode(fit: FitResult, y: FloatArray, pred: FloatArray, dt: float | None) -> dict[str, float] | None:
+    """A lightly damped structural mode that the chosen model's prediction ``pred`` of ``y`` (paired
+    as the fit pairs them) leaves out (:func:`~piezohyst.signals.lightly_damped_mode`), searched
+    from twice the excitation's fastest frequency (``fit.info["search"]``) up to
+    :data:`MODE_SEARCH_TOP` of the sample rate; kept as ``fit.info["structural_mode"]`` (None where
+    none is found or the fit has no sample period)."""
+    from ..signals import lightly_damped_mode
+
+    f_hi = (fit.info.get("search") or {}).get("f_hi_hz")
+    mode = None
+    if dt is not None and f_hi and y.size == pred.size:
+        mode = lightly_damped_mode(y, pred, dt, f_min=2.0 * float(f_hi), f_max=MODE_SEARCH_TOP / dt)
+    fit.info["structural_mode"] = mode
+    return mode
 
 
 #: The rate warning (:func:`_quality_warnings`): the residual over the fastest tenth of the record
