@@ -567,18 +567,21 @@ class CommissionedController:
             return self.fit.residual(ds.u, ds.y, dt)
         # the model predicts what the hysteresis puts out ahead of the mode: through the mode
         # it predicts the record
-        ahead = self._ahead_of_mode(ds.y)
+        ahead = self._identification_ahead
         pred = ahead[self.delay:] - self.fit.residual(ds.u, ahead, dt)
         b, a = second_order_filter(m["f_hz"], m["zeta"], self.plant.dt)
         from scipy.signal import lfilter
 
         return np.asarray(ds.y[self.delay:] - (lfilter(b, a, pred - pred[0]) + pred[0]), dtype=np.float64)
 
-    def _ahead_of_mode(self, y: FloatArray) -> FloatArray:
-        """A record read back through :attr:`output_mode`'s inverse (see :data:`MODE_DECONVOLUTION_BAND`)."""
+    @cached_property
+    def _identification_ahead(self) -> FloatArray:
+        """The identification run read back through :attr:`output_mode`'s inverse (see
+        :data:`MODE_DECONVOLUTION_BAND`): what the model is fitted to."""
         m = self.output_mode
         assert m is not None
-        return mode_inverse(y, self.plant.dt, m["f_hz"], m["zeta"], band_hz=MODE_DECONVOLUTION_BAND * m["f_hz"])
+        return mode_inverse(np.asarray(self.identification.y, dtype=np.float64), self.plant.dt, m["f_hz"], m["zeta"],
+                            band_hz=MODE_DECONVOLUTION_BAND * m["f_hz"])
 
     def feedforward_targets(self, reference: Any, period: int | None = None) -> FloatArray:
         """What the feedforward is asked to produce so that the stage follows ``reference`` (µm):
@@ -1155,7 +1158,7 @@ def _fit_ahead_of_mode(ctl: CommissionedController, refit: Callable[[FloatArray]
         return ctl
     say(f"fitting again ahead of a structural mode at {m['f_hz']:.4g} Hz ({100 * m['zeta']:.2g} % damping)")
     trial = replace(ctl, output_mode=dict(m), info=dict(ctl.info))
-    ahead = trial._ahead_of_mode(np.asarray(ctl.identification.y, dtype=np.float64))
+    ahead = trial._identification_ahead
     if not np.all(np.isfinite(ahead)):  # a record with gaps: the first model stands
         return ctl
     try:
