@@ -292,6 +292,68 @@ def mode_inverse(y: Any, dt: float, f_hz: float, zeta: float, *, band_hz: float,
     return x + (2.0 * zeta / w) * d1 + d2 / (w * w)
 
 
+#: :func:`transfer_peak_mode` takes a peak only where the command explains the output this well
+#: (magnitude-squared coherence): elsewhere the ratio of spectra is noise.
+MODE_COHERENCE = 0.8
+#: ... and only a peak this many times the gain at low frequencies.
+MODE_PEAK_RATIO = 3.0
+
+
+def transfer_peak_mode(u: Any, y: Any, dt: float, *, f_min: float, f_max: float) -> dict[str, float] | None:
+    """A lightly damped mode read off a record's command-to-output transfer function, without any
+    model: the highest peak of ``|P_uy| / P_uu`` (Welch, at a resolution of a twentieth of
+    ``f_min``) between ``f_min`` and ``f_max`` where the coherence is at least
+    :data:`MODE_COHERENCE`, if it stands :data:`MODE_PEAK_RATIO` times above the median gain below
+    ``f_min / 2``; its damping ratio from the half-power width (at least half the resolution over
+    the frequency, at most 0.2). None where there is no such peak.
+
+    Where a model's delay and lags have taken up a well-damped mode's effect on a record, the mode
+    no longer shows in what the model leaves (:func:`lightly_damped_mode` finds nothing), but the
+    transfer function still peaks at it: on four stages with modes damped 4.7-9.3 % at 51-69 Hz,
+    peaks at 50.2, 54.5, 58.8 and 71.6 Hz, damping 4.4-8.7 %.
+
+    Returns ``{"f_hz", "zeta", "peak_ratio", "coherence"}``.
+    """
+    from scipy.signal import csd, welch
+
+    uu = as_signal("u", u, min_length=3)
+    yy = as_signal("y", y, min_length=3)
+    if uu.size != yy.size:
+        raise ValueError(f"u and y must have the same length, got {uu.size} and {yy.size}")
+    if not (dt > 0.0 and 0.0 < f_min < f_max):
+        return None
+    nper = int(min(uu.size, max(16, round(20.0 / (f_min * dt)))))
+    f, puy = csd(uu - uu.mean(), yy - yy.mean(), fs=1.0 / dt, nperseg=nper)
+    _, puu = welch(uu - uu.mean(), fs=1.0 / dt, nperseg=nper)
+    _, pyy = welch(yy - yy.mean(), fs=1.0 / dt, nperseg=nper)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain = np.where(puu > 0.0, np.abs(puy) / puu, 0.0)
+        coh = np.where(puu * pyy > 0.0, np.abs(puy) ** 2 / (puu * pyy), 0.0)
+    low = (f > 0.0) & (f <= 0.5 * f_min)
+    band = np.flatnonzero((f >= f_min) & (f <= min(f_max, 0.45 / dt)) & (coh >= MODE_COHERENCE))
+    if not low.any() or band.size < 3:
+        return None
+    g0 = float(np.median(gain[low]))
+    k = int(band[np.argmax(gain[band])])
+    if not (g0 > 0.0 and gain[k] >= MODE_PEAK_RATIO * g0) or k in (0, f.size - 1):
+        return None
+    half = gain[k] / np.sqrt(2.0)
+    i, j = k, k
+    while i > 0 and gain[i] > half:
+        i -= 1
+    while j < f.size - 1 and gain[j] > half:
+        j += 1
+
+    def crossing(a: int, b: int) -> float:  # where the gain passes half power between bins a and b
+        if gain[b] == gain[a]:
+            return float(f[a])
+        return float(f[a] + (half - gain[a]) * (f[b] - f[a]) / (gain[b] - gain[a]))
+
+    width = crossing(j - 1, j) - crossing(i, i + 1)
+    zeta = min(max(width, float(f[1] - f[0])) / (2.0 * float(f[k])), 0.2)
+    return {"f_hz": float(f[k]), "zeta": float(zeta), "peak_ratio": float(gain[k] / g0), "coherence": float(coh[k])}
+
+
 def lightly_damped_mode(y: Any, prediction: Any, dt: float, *, f_min: float,
                         f_max: float) -> dict[str, float] | None:
     """A lightly damped structural mode between ``f_min`` and ``f_max`` (Hz) that a hysteresis
