@@ -40,10 +40,15 @@ def test_the_hold_discretisation_matches_scipy():
         second_order_filter(50.0, 1.5, 1e-4)
 
 
+def _pi_input(dt):
+    """A slow and a fast full-range sinusoid, V."""
+    return np.concatenate([ph.sinusoid(1.0, 2, 0.0, 100.0, dt), ph.sinusoid(7.0, 5, 0.0, 100.0, dt)])
+
+
 def _pi_record(dt):
-    """A P-I model's output for a slow and a fast full-range sinusoid (corners that ring a mode)."""
+    """A P-I model's output for :func:`_pi_input` (corners that ring a mode)."""
     model = ph.PrandtlIshlinskii(thresholds=np.linspace(0.0, 45.0, 10), weights=np.linspace(0.1, 0.02, 10))
-    return model.simulate(np.concatenate([ph.sinusoid(1.0, 2, 0.0, 100.0, dt), ph.sinusoid(7.0, 5, 0.0, 100.0, dt)]))
+    return model.simulate(_pi_input(dt))
 
 
 @settings(max_examples=12, deadline=None)
@@ -91,7 +96,7 @@ def test_a_fit_warns_of_a_mode_its_residual_rings_at(kind):
     # a P-I record through a 90 Hz mode at 1 % (the fit bends its delay towards the mode, so the
     # mode read off its residual lies within 15 %); the same record without it: no such warning
     dt = 1e-4
-    u = np.concatenate([ph.sinusoid(1.0, 2, 0.0, 100.0, dt), ph.sinusoid(7.0, 5, 0.0, 100.0, dt)])
+    u = _pi_input(dt)
     p = _pi_record(dt)
     noise = 1e-3 * np.random.default_rng(0).standard_normal(p.size)
     b, a = second_order_filter(90.0, 0.01, dt)

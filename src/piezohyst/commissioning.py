@@ -169,12 +169,13 @@ from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
+from .identify.select import MODE_SEARCH_TOP, structural_mode_search
 from .identify.monotone import (DEAD_BINS, DeadRange, DeadRangeWarning, MonotoneRange, NotMonotoneWarning, dead_range,
                                 monotone_range, rises_with_input)
 from .models.base import Compensator, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
                     plant_u_range)
-from .signals import (estimate_period, lightly_damped_mode, mode_inverse, noise_e_max, second_order_filter,
+from .signals import (estimate_period, mode_inverse, noise_e_max, second_order_filter,
                       sensor_noise_rms, sinusoid, transfer_peak_mode)
 
 #: The kinds commissioning chooses from: fast to fit, each with an exact or numerical inverse.
@@ -801,23 +802,18 @@ class CommissionedController:
         """
         if self.output_mode is not None:  # the model is fitted ahead of it
             return self.output_mode
-        if "structural_mode" in self.fit.info:  # the fit's own search, over the same band
-            found = self.fit.info["structural_mode"]
-            return dict(found) if found else None
-        left = self._identification_left
-        f_hi = (self.fit.info.get("search") or {}).get("f_hi_hz")
-        dt = getattr(self.plant, "dt", None)
-        if left is None or not f_hi or not dt:
-            return None
-        y = np.asarray(self.identification.y, dtype=np.float64)[self.delay:]
-        return lightly_damped_mode(y, y - left, dt, f_min=2.0 * float(f_hi),
-                                   f_max=2.0 * self.MAX_CUTOFF_FRACTION / dt)
+        if "structural_mode" not in self.fit.info:  # a fit made without the search (e.g. by fit_pi)
+            left = self._identification_left
+            if left is None:
+                return None
+            y = np.asarray(self.identification.y, dtype=np.float64)[self.delay:]
+            structural_mode_search(self.fit, y, y - left, getattr(self.plant, "dt", None))
+        found = self.fit.info["structural_mode"]
+        return dict(found) if found else None
 
     def _mode_cap(self) -> float:
-        mode = self.structural_mode
-        found = [mode["f_hz"]] if mode else []
-        if self.resonance_hz is not None:
-            found.append(self.resonance_hz)
+        mode, seen = self.structural_mode, self.resonance_hz
+        found = ([mode["f_hz"]] if mode else []) + ([seen] if seen is not None else [])
         return MODE_BAND_SHARE * min(found) if found else math.inf
 
     @property
@@ -1167,7 +1163,7 @@ def _fit_ahead_of_mode(ctl: CommissionedController, refit: Callable[[FloatArray]
         f_hi = (ctl.fit.info.get("search") or {}).get("f_hi_hz")
         dt = ctl.plant.dt
         peak = (transfer_peak_mode(ctl.identification.u, ctl.identification.y, dt, f_min=2.0 * float(f_hi),
-                                   f_max=2.0 * ctl.MAX_CUTOFF_FRACTION / dt) if f_hi else None)
+                                   f_max=MODE_SEARCH_TOP / dt) if f_hi else None)
         if peak is None:
             return ctl
         m = {"f_hz": peak["f_hz"], "zeta": peak["zeta"], "explained": math.nan}

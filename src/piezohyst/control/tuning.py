@@ -390,15 +390,19 @@ SETTLED_FEEDBACK = 0.25
 SETTLE_STRETCHES = 8
 
 
+def _error_changes(fbs: FloatArray, fb0: float) -> FloatArray:
+    """The error's sample-to-sample changes over the second half of a probe segment, in units of
+    the integral's gain: read off the integral feedback's outputs (``fb(k) - fb(k-1) = gain e(k)``
+    where the integral is not held at a limit)."""
+    e = np.diff(np.concatenate([[fb0], fbs]))
+    return np.diff(e[e.size // 2:])
+
+
 def _error_ripple(fbs: FloatArray, fb0: float, gain: float) -> float:
-    """The error's sample-to-sample RMS over the second half of a probe segment, read off the
-    integral feedback's outputs (``fb(k) - fb(k-1) = gain e(k)`` where the integral is not held at
-    a limit)."""
+    """The error's sample-to-sample RMS over the second half of a probe segment (:func:`_error_changes`)."""
     if not gain > 0 or fbs.size < 8:
         return 0.0
-    e = np.diff(np.concatenate([[fb0], fbs])) / gain
-    half = e[e.size // 2:]
-    return float(np.std(np.diff(half)))
+    return float(np.std(_error_changes(fbs, fb0) / gain))
 
 
 def ripple_frequency(fbs: FloatArray, fb0: float, dt: float) -> float | None:
@@ -416,8 +420,7 @@ def ripple_frequency(fbs: FloatArray, fb0: float, dt: float) -> float | None:
     """
     if fbs.size < 16 or not dt > 0:
         return None
-    e = np.diff(np.concatenate([[fb0], fbs]))
-    d = np.diff(e[e.size // 2:])
+    d = _error_changes(fbs, fb0)
     spec = np.abs(np.fft.rfft((d - d.mean()) * np.hanning(d.size)))
     if spec.size < 3:
         return None

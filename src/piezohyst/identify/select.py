@@ -1257,7 +1257,7 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
             f"record")
         out.append(by_rate["warning"])
     fit.info["residual_by_rate"] = by_rate
-    mode = _structural_mode(fit, y[d:] if d else y, pred[: pred.size - d] if d else pred, dt)
+    mode = structural_mode_search(fit, y[d:] if d else y, pred[: pred.size - d] if d else pred, dt)
     if mode is not None and mode["explained"] >= MODE_WARN_SHARE:
         out.append(f"what the model leaves rings at {mode['f_hz']:.4g} Hz: a lightly damped mode ({100 * mode['zeta']:.2g} % "
                    f"damping; {100 * mode['explained']:.0f} % of the residual) that no model kind here has, and the fitted "
@@ -1288,14 +1288,15 @@ def _quality_warnings(fit: FitResult, u: FloatArray, y: FloatArray, dt: float | 
     return out
 
 
-#: The structural-mode search (:func:`_structural_mode`) looks up to this fraction of the sample
+#: The structural-mode search (:func:`structural_mode_search`) looks up to this fraction of the sample
 #: rate (twice the widest band commissioning's learning may use) ...
 MODE_SEARCH_TOP = 0.1
 #: ... and a mode that explains at least this share of the residual is a fit warning.
 MODE_WARN_SHARE = 0.1
 
 
-def _structural_mode(fit: FitResult, y: FloatArray, pred: FloatArray, dt: float | None) -> dict[str, float] | None:
+def structural_mode_search(fit: FitResult, y: FloatArray, pred: FloatArray,
+                           dt: float | None) -> dict[str, float] | None:
     """A lightly damped structural mode that the chosen model's prediction ``pred`` of ``y`` (paired
     as the fit pairs them) leaves out (:func:`~piezohyst.signals.lightly_damped_mode`), searched
     from twice the excitation's fastest frequency (``fit.info["search"]``) up to
