@@ -218,6 +218,8 @@ class _Candidate:
     n_parameters: int
     time_s: float
     per_set: list[float] = field(default_factory=list)
+    #: the hold-out error before a candidate was ruled out (``score`` is then inf): how close it came
+    unmasked: float = math.nan
 
 
 class _SearchCancelled(Exception):
@@ -320,10 +322,11 @@ class _Scorer:
             score = float(np.sqrt(np.mean(e**2)))
             per = [score]
             fit_rmse = float("nan")
+        unmasked = score
         if st.static == "duhem" and not _duhem_invertible(model, self.margin):
             score, per = math.inf, [math.inf] * len(per)  # its inverse's gain could exceed 1 / margin
         c = _Candidate(st, st.label(), st.kind, score, fit_rmse, int(info["n_parameters"]),
-                       time.perf_counter() - t0, per)
+                       time.perf_counter() - t0, per, unmasked)
         self.tried.append(c)
         self._done[st] = c
         return c
@@ -550,7 +553,8 @@ def fit_model(
         if once and ("generalized-duhem" in linear or ("rate-dependent" in linear and best.structure.rate_dependent)):
             say("generalized Duhem model")
             c = _duhem_shapes(sc, best, best.structure, "generalized-duhem" in linear, "rate-dependent" in linear,
-                              kind_name == "generalized-duhem", n, ranges.max_delay if delay == "auto" else None)
+                              kind_name == "generalized-duhem", n, ranges.max_delay if delay == "auto" else None,
+                              _lag_sets(ranges, dt))
             if c is not best and delay == "auto":
                 c = _realign(sc, c, ranges, _input_lags(ranges, dt, linear), linear, kind_name)
             best = c
@@ -811,7 +815,7 @@ def _linear_search(sc: _Scorer, base: Structure, ranges: SearchRanges, delay: An
                     best = c if c.score < best.score else best
     say("model kind and size" + rule)
     chosen = _kind_stage(sc, best, linear, n, n_fit, kind_name, statics,
-                         max_delay=ranges.max_delay if delay == "auto" else None)
+                         max_delay=ranges.max_delay if delay == "auto" else None, lag_sets=_lag_sets(ranges, dt))
     if delay == "auto" and (chosen.structure.static, chosen.structure.size, chosen.structure.map_knots) != \
             (best.structure.static, best.structure.size, best.structure.map_knots):
         say("sensor delay and lags again, with the chosen kind" + rule)
@@ -848,8 +852,17 @@ def _choose(best: _Candidate, c: _Candidate) -> _Candidate:
     return c if c.score < best.score else best
 
 
+def _lag_sets(ranges: SearchRanges, dt: float | None) -> list[tuple[float, ...]]:
+    """The output-lag sets the search tries (the ranges' rate and creep lags), each once; none without ``dt``."""
+    if dt is None:
+        return []
+    return [t for i, t in enumerate((ranges.rate_taus, ranges.creep_taus)) if t and t not in (ranges.rate_taus,
+                                                                                              ranges.creep_taus)[:i]]
+
+
 def _kind_stage(sc: _Scorer, best: _Candidate, linear: list[str], n: int | None, n_fit: int,
-                force: str | None, statics: Sequence[str], max_delay: int | None = None) -> _Candidate:
+                force: str | None, statics: Sequence[str], max_delay: int | None = None,
+                lag_sets: Sequence[tuple[float, ...]] = ()) -> _Candidate:
     """Stage 4: the static kind and its size (smaller first; larger ones must win by MIN_GAIN)."""
     st0 = best.structure
     inc: _Candidate | None = None
@@ -871,7 +884,7 @@ def _kind_stage(sc: _Scorer, best: _Candidate, linear: list[str], n: int | None,
                                force == "bouc-wen-hysteresis")
     if "duhem" in statics and ("generalized-duhem" in linear or ("rate-dependent" in linear and st0.rate_dependent)):
         inc = _duhem_shapes(sc, inc, st0, "generalized-duhem" in linear, "rate-dependent" in linear,
-                            force == "generalized-duhem", n, max_delay)
+                            force == "generalized-duhem", n, max_delay, lag_sets)
     want_plain = "preisach" in linear and "preisach" in statics
     want_rate = "rate-dependent" in linear and st0.rate_dependent and "preisach" in statics
     if want_plain or want_rate:
@@ -955,7 +968,8 @@ def _far_from_rest(u: FloatArray) -> str | None:
 
 
 def _duhem_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bool, lagged: bool,
-                  force: bool, n: int | None, max_delay: int | None = None) -> _Candidate:
+                  force: bool, n: int | None, max_delay: int | None = None,
+                  lag_sets: Sequence[tuple[float, ...]] = ()) -> _Candidate:
     """The generalised Duhem model with the stage's lags (or none): its relaxation rate on a grid
     over the input's span (``lam span`` from 0.5 to 32 by factors of 2: a loop that relaxes over
     twice the span to one that relaxes over 3 % of it) with 8 knots; with ``max_delay``, the delay
@@ -981,13 +995,30 @@ def _duhem_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bo
         return inc
     k0 = 8 if 8 in sizes else sizes[0]
 
-    def cand(ls: float, k: int, delay: int) -> _Candidate:
-        st = Structure("duhem", k, 0, taus, itau, delay, shape=(float(f"{ls:.9g}") / span, 0.0))
+    def cand(ls: float, k: int, delay: int, lags: tuple[tuple[float, ...], float] | None = None) -> _Candidate:
+        ts, it = (taus, itau) if lags is None else lags
+        st = Structure("duhem", k, 0, ts, it, delay, shape=(float(f"{ls:.9g}") / span, 0.0))
         return sc.linear(st)
 
     grid = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+    start = len(sc.tried)
     best = _best([cand(ls, k0, st0.delay) for ls in grid])
+
+    def closest() -> _Candidate:
+        """The best candidate, or where every one so far was ruled out (not invertible), the one
+        whose hold-out error came closest before it was."""
+        if math.isfinite(best.score):
+            return best
+        mine = [c for c in sc.tried[start:] if isinstance(c.structure, Structure)
+                and c.structure.static == "duhem" and math.isfinite(c.unmasked)]
+        return min(mine, key=lambda c: c.unmasked, default=best)
+
     if max_delay is not None:
+        if not math.isfinite(best.score):
+            # no rate invertible at the stages' delay: fitted at a delay that is not its own, a
+            # Duhem model bends its branches to follow the misalignment, so the delay is searched
+            # from the rate that came closest
+            best = _delay_search(sc, closest().structure, 0, max_delay)
         # the rate and the delay trade against each other: each searched with the other fixed,
         # until neither moves (twice at most)
         for _ in range(2):
@@ -1001,14 +1032,27 @@ def _duhem_shapes(sc: _Scorer, inc: _Candidate | None, st0: Structure, plain: bo
             best = _best([best, *(cand(ls, k0, best.structure.delay) for ls in grid)])
             if best.structure.shape[0] == ls0:
                 break
-    for factor in DUHEM_RATE_STEPS:
-        ls0, d0 = best.structure.shape[0] * span, best.structure.delay
-        best = _best([best, cand(ls0 / factor, k0, d0), cand(ls0 * factor, k0, d0)])
-    ls0 = best.structure.shape[0] * span
-    for k in sorted(sizes):
-        if k != k0:
-            c = cand(ls0, k, best.structure.delay)
-            best = _prefer(best, c) if k > k0 else _choose(best, c)
+    if lagged and lag_sets and not best.structure.taus:
+        # the stages before chose the output lags with a P-I model (here: none); where that model
+        # cannot follow the loop, its misfit hides the creep the lags would take, and a Duhem model
+        # that follows the loop may need them (Jiles-Atherton-like stages behind a slow amplifier:
+        # every Duhem model without lags ruled out or behind a Preisach model, with them the best
+        # by half). Each of the ranges' lag sets, from the best (or closest) rate, with the delay
+        # searched again (the lags take part of it); more complex, so it must win by MIN_GAIN
+        base0 = closest().structure
+        for lag_set in lag_sets:
+            base = replace(base0, taus=tuple(lag_set))
+            best = _prefer(best, _delay_search(sc, base, 0, max_delay) if max_delay is not None else sc.linear(base))
+    if math.isfinite(best.score):
+        lags = (best.structure.taus, best.structure.input_tau)
+        for factor in DUHEM_RATE_STEPS:
+            ls0, d0 = best.structure.shape[0] * span, best.structure.delay
+            best = _best([best, cand(ls0 / factor, k0, d0, lags), cand(ls0 * factor, k0, d0, lags)])
+        ls0 = best.structure.shape[0] * span
+        for k in sorted(sizes):
+            if k != k0:
+                c = cand(ls0, k, best.structure.delay, lags)
+                best = _prefer(best, c) if k > k0 else _choose(best, c)
     if not math.isfinite(best.score):
         return best if inc is None else inc
     if inc is None or force:
