@@ -297,13 +297,40 @@ def mode_inverse(y: Any, dt: float, f_hz: float, zeta: float, *, band_hz: float,
 MODE_COHERENCE = 0.8
 #: ... and only a peak this many times the gain at low frequencies.
 MODE_PEAK_RATIO = 3.0
+#: ... and only where the command has power: at least this share of the geometric mean of its
+#: power a fifth of the frequency below and above (:data:`MODE_INPUT_SPREAD`). At a null of the
+#: command's spectrum (a ramp's or a triangle's) the ratio of spectra is the hysteresis's
+#: distortion over almost no command: rising to false "peaks" (146.6 Hz on three probe stages
+#: with no mode there, where the command's power fell to 1e-4 of its low-frequency level while it
+#: was 10 times that at 120 and 180 Hz). A smooth spectrum falling as any power of the frequency
+#: passes at a ratio of one.
+MODE_INPUT_SHARE = 0.25
+#: The factor above and below a frequency where :data:`MODE_INPUT_SHARE` reads the command's power.
+MODE_INPUT_SPREAD = 1.2
+
+
+def _command_has_power(f: FloatArray, puu: FloatArray, bins: Any) -> Any:
+    """Which of ``bins`` (indices into the spectrum ``puu`` at frequencies ``f``) are not at a
+    null of it: :data:`MODE_INPUT_SHARE` of the geometric mean of its power (a median over five
+    bins) a factor :data:`MODE_INPUT_SPREAD` below and above."""
+    idx = np.asarray(bins, dtype=np.intp)
+    if idx.size == 0:
+        return np.zeros(0, dtype=bool)
+
+    def around(freqs: FloatArray) -> FloatArray:
+        at = np.clip(np.searchsorted(f, freqs), 2, f.size - 3)
+        return np.median(np.stack([puu[at + j] for j in range(-2, 3)]), axis=0)
+
+    lo, hi = around(f[idx] / MODE_INPUT_SPREAD), around(f[idx] * MODE_INPUT_SPREAD)
+    return puu[idx] >= MODE_INPUT_SHARE * np.sqrt(lo * hi)
 
 
 def transfer_peak_mode(u: Any, y: Any, dt: float, *, f_min: float, f_max: float) -> dict[str, float] | None:
     """A lightly damped mode read off a record's command-to-output transfer function, without any
     model: the highest peak of ``|P_uy| / P_uu`` (Welch, at a resolution of a twentieth of
     ``f_min``) between ``f_min`` and ``f_max`` where the coherence is at least
-    :data:`MODE_COHERENCE`, if it stands :data:`MODE_PEAK_RATIO` times above the median gain below
+    :data:`MODE_COHERENCE` and the command has power (not at a null of its spectrum:
+    :data:`MODE_INPUT_SHARE`), if it stands :data:`MODE_PEAK_RATIO` times above the median gain below
     ``f_min / 2``; its damping ratio from the half-power width (at least half the resolution over
     the frequency, at most 0.2). None where there is no such peak.
 
@@ -331,6 +358,7 @@ def transfer_peak_mode(u: Any, y: Any, dt: float, *, f_min: float, f_max: float)
         coh = np.where(puu * pyy > 0.0, np.abs(puy) ** 2 / (puu * pyy), 0.0)
     low = (f > 0.0) & (f <= 0.5 * f_min)
     band = np.flatnonzero((f >= f_min) & (f <= min(f_max, 0.45 / dt)) & (coh >= MODE_COHERENCE))
+    band = band[_command_has_power(f, puu, band)]
     if not low.any() or band.size < 3:
         return None
     g0 = float(np.median(gain[low]))
