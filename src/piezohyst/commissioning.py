@@ -1158,8 +1158,9 @@ def _fit_ahead_of_mode(ctl: CommissionedController, refit: Callable[[FloatArray]
         # stages with modes damped 4.7-9.3 % at 51-69 Hz (delays of 15-85 samples fitted where the
         # stages had 0-3), the feedforward alone at 1 / 5 Hz went from 1.05 / 2.89, 1.96 / 2.71,
         # 0.86 / 1.28 and 1.57 / 1.53 % to 0.36 / 0.91, 1.58 / 1.67, 0.59 / 0.34 and 1.33 / 0.52 %.
-        # A peak of the hysteresis' own (two zoo stages: 142 and 147 Hz) fits worse ahead of it,
-        # and is dropped
+        # A peak of the hysteresis' own distortion where the command has little power fits worse
+        # ahead of it, and is dropped; at a null of the command's spectrum (146.6 Hz at 20 kHz,
+        # where such peaks stood on three of six probe stages) none is read (MODE_INPUT_SHARE)
         f_hi = (ctl.fit.info.get("search") or {}).get("f_hi_hz")
         dt = ctl.plant.dt
         peak = (transfer_peak_mode(ctl.identification.u, ctl.identification.y, dt, f_min=2.0 * float(f_hi),
