@@ -258,8 +258,46 @@ def test_a_stage_read_with_the_opposite_sign_is_named_as_such():
     # every model kind has a rising loop; the user is told to flip the sign, not to "negate y"
     # of a record they never made
     plant = _Reversed(ResonantStage(seed=0), 0.0)
-    with pytest.raises(ValueError, match=r"falls as the command rises.*_Reversed\.step\(\)"):
+    with pytest.raises(ValueError, match=r"falls as the command rises.*_Reversed\.step\(\)") as err:
         ph.commission(plant, tune=False)
+    assert "butterfly" not in str(err.value)  # it falls everywhere: only the sign is named
+
+
+class _Butterfly:
+    """Strain of a bipolar stack driven past its coercive voltage ``vc``: the polarisation flips
+    sign there, and below ``vc`` on the way up from the bottom the strain falls as the command
+    rises (a butterfly loop, not a hysteresis any model here represents)."""
+
+    def __init__(self, vc, stroke, v_max):
+        self.vc, self.stroke, self.v_max = vc, stroke, v_max
+        self.reset()
+
+    def reset(self):
+        self.p = 1.0
+
+    def step(self, v):
+        if v < -self.vc:
+            self.p = -1.0
+        elif v > self.vc:
+            self.p = 1.0
+        x = v / self.v_max
+        return self.stroke * (0.8 * self.p * x + 0.2 * x * x)
+
+
+def test_a_butterfly_loop_is_named_with_the_range_where_the_stage_rises():
+    # before: only "its gain is negative, e.g. a sensor mounted the other way round"
+    from .plants.zoo import Stage
+
+    stage = Stage("butterfly", _Butterfly(60.0, 10.0, 100.0), 1e-4, (-100.0, 100.0), tau_amp=2e-4,
+                  kv=((0.03, 0.02),), noise_um=0.003, delay_samples=1, seed=1)
+    with pytest.raises(ValueError, match=r"falls as the command rises.*butterfly.*u_range=\(") as err:
+        ph.commission(stage, tune=False)
+    lo, hi = (float(v) for v in str(err.value).rsplit("u_range=(", 1)[1].split(")")[0].split(","))
+    assert 0.0 < lo < hi == 100.0, (lo, hi)  # above the coercive voltage on the way up: it rises
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ctl = ph.commission(stage, u_range=(lo, hi), tune=False)
+    assert ctl.fit.info["holdout"]["percent_of_span"] < 1.0
 
 
 class _Shifted:
