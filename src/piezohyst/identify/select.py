@@ -17,8 +17,9 @@ the hold-out error by :data:`MIN_GAIN` to replace a simpler one):
 3. output lags: none, the rate-dependence band, rate and creep (then stage 2);
 4. the static kind and its size: P-I operators, asymmetric P-I output-map knots, the Bouc-Wen
    hysteresis's shape, the generalised Duhem model's relaxation rate and knots (a candidate whose
-   branches could rise by less than the margin over the states its range reaches is refused),
-   Preisach levels;
+   branches could rise by less than the margin over the states its range reaches is refused; where
+   stage 3 chose no lags, the Duhem model is also tried with each lag set and the delay searched
+   again, kept where it wins by ``MIN_GAIN`` per lag), Preisach levels;
    when another kind or size won, the delay over its whole range again with it, with and without
    the lags (a plain P-I model that cannot follow the loop can pick a long delay for its misfit);
 5. Bouc-Wen (PSO) when the kind allows it and a sample period is known;
