@@ -307,12 +307,15 @@ MODE_PEAK_RATIO = 3.0
 MODE_INPUT_SHARE = 0.25
 #: The factor above and below a frequency where :data:`MODE_INPUT_SHARE` reads the command's power.
 MODE_INPUT_SPREAD = 1.2
+#: ... and the factor within which the command's least power counts (a null beside a peak).
+MODE_INPUT_NEAR = 1.1
 
 
 def _command_has_power(f: FloatArray, puu: FloatArray, bins: Any) -> Any:
-    """Which of ``bins`` (indices into the spectrum ``puu`` at frequencies ``f``) are not at a
-    null of it: :data:`MODE_INPUT_SHARE` of the geometric mean of its power (a median over five
-    bins) a factor :data:`MODE_INPUT_SPREAD` below and above."""
+    """Which of ``bins`` (indices into the spectrum ``puu`` at frequencies ``f``) are not at or
+    beside a null of it: its least power within a factor :data:`MODE_INPUT_NEAR` is at least
+    :data:`MODE_INPUT_SHARE` of the geometric mean of its power (a median over five bins) a factor
+    :data:`MODE_INPUT_SPREAD` below and above."""
     idx = np.asarray(bins, dtype=np.intp)
     if idx.size == 0:
         return np.zeros(0, dtype=bool)
@@ -322,7 +325,12 @@ def _command_has_power(f: FloatArray, puu: FloatArray, bins: Any) -> Any:
         return np.median(np.stack([puu[at + j] for j in range(-2, 3)]), axis=0)
 
     lo, hi = around(f[idx] / MODE_INPUT_SPREAD), around(f[idx] * MODE_INPUT_SPREAD)
-    return puu[idx] >= MODE_INPUT_SHARE * np.sqrt(lo * hi)
+    # the least power within MODE_INPUT_NEAR of the bin: a peak on a null's shoulder (138 Hz, the
+    # null at 146) is as false as one at its bottom
+    a = np.searchsorted(f, f[idx] / MODE_INPUT_NEAR)
+    b = np.searchsorted(f, f[idx] * MODE_INPUT_NEAR, side="right")
+    least = np.array([puu[i:j].min() if j > i else puu[k] for i, j, k in zip(a, b, idx)])
+    return least >= MODE_INPUT_SHARE * np.sqrt(lo * hi)
 
 
 def transfer_peak_mode(u: Any, y: Any, dt: float, *, f_min: float, f_max: float) -> dict[str, float] | None:
