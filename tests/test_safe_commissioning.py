@@ -430,3 +430,21 @@ def test_a_run_stopped_part_way_ramps_back_to_rest(exc):
     assert abs(cmds[-1]) < 1e-12, cmds[-5:]                       # ... and back at rest (0 V)
     assert stage.largest_step() <= 0.02 * (hi - lo) + 1e-9       # smoothly, from where it was
     assert stage.calls > 4000                                     # the ramp was sent after the fault
+
+
+def test_fit_model_names_a_butterfly_loop_but_not_a_dead_band():
+    # before: only "falls as the input rises ... a sensor that reads the other way round: negate y"
+    # (driven to -100 V but only up to 70 V the record falls overall: correlation -0.44; where it
+    # is driven as far both ways the fit goes ahead and its warnings name the butterfly)
+    u = ph.sinusoid(1.0, 4, -100.0, 70.0, 1e-4)
+    element = _Butterfly(60.0, 10.0, 100.0)
+    y = np.array([element.step(v) for v in u])
+    with pytest.raises(ValueError, match=r"falls as the input rises.*butterfly") as err:
+        ph.fit_model(u, y, 1e-4)
+    lo, hi = (float(v) for v in str(err.value).split("rise with the input over ")[1].split(":")[0].split(".."))
+    assert -60.0 < lo < hi == 70.0, (lo, hi)  # it rises there while the stack stays poled
+    # swings inside a dead band: the output is noise, no part of the range "rises"
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="hardly follows") as err:
+        ph.fit_model(u, 1e-3 * rng.standard_normal(u.size) - 1e-6 * u, 1e-4)
+    assert "butterfly" not in str(err.value)

@@ -171,7 +171,7 @@ from .data import Dataset
 from .identify import FitResult, fit_model
 from .identify.select import MODE_SEARCH_TOP, structural_mode_search
 from .identify.monotone import (DEAD_BINS, DeadRange, DeadRangeWarning, MonotoneRange, NotMonotoneWarning, dead_range,
-                                monotone_range, rises_with_input)
+                                monotone_range, rises_with_input, rising_part)
 from .models.base import Compensator, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
                     plant_u_range)
@@ -1418,31 +1418,6 @@ MONOTONE_MARGIN = 0.02
 _narrowing = threading.local()
 
 
-def _rising_part(u: FloatArray, y: FloatArray, parts: int = 10) -> tuple[float, float] | None:
-    """The widest run of adjacent tenths of the command's range, at its top or its bottom, over
-    each of which the output rises with the command (least-squares slope over the samples there),
-    where the run as a whole falls; None where no tenth at an end rises or every one does."""
-    lo, hi = float(np.min(u)), float(np.max(u))
-    if not hi > lo:
-        return None
-    edges = np.linspace(lo, hi, parts + 1)
-    which = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, parts - 1)
-    rises = []
-    for j in range(parts):
-        uu, yy = u[which == j], y[which == j]
-        du = uu - uu.mean() if uu.size > 2 else np.zeros(0)
-        rises.append(bool(du.size and float(np.dot(du, yy - yy.mean())) > 0.0))
-    if all(rises):
-        return None
-    top = next((j for j in range(parts - 1, -1, -1) if not rises[j]), -1) + 1  # rises from tenth `top` up
-    bottom = next((j for j in range(parts) if not rises[j]), parts)  # rises below tenth `bottom`
-    if top >= parts and bottom <= 0:
-        return None
-    if parts - top >= bottom:
-        return float(edges[top]), hi
-    return lo, float(edges[bottom])
-
-
 def _commission_where_monotone(plant: Any, call: dict[str, Any], mono: MonotoneRange, limits: CommandLimits,
                                own_excitation: bool) -> "CommissionedController":
     """The identification showed the stage not monotone at an end of the range (a butterfly
@@ -1604,7 +1579,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         ds = Dataset(np.arange(cmd.size, dtype=np.float64) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "play"})
     ident_counts = guard.counts()
     if not rises_with_input(ds.u[warmup:], ds.y[warmup:]):
-        rising = _rising_part(ds.u[warmup:], ds.y[warmup:])
+        rising = rising_part(ds.u[warmup:], ds.y[warmup:])
         raise ValueError(
             f"the plant's displacement falls as the command rises (its gain is negative, e.g. a sensor "
             f"mounted the other way round): make {type(plant).__name__}.step() return the displacement "

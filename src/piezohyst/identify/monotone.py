@@ -288,6 +288,44 @@ def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
     return not r < 0
 
 
+#: :func:`rising_part` names a part of the range only where the output follows the input over it
+#: this well (correlation).
+RISING_CORRELATION = 0.5
+
+
+def rising_part(u: FloatArray, y: FloatArray, parts: int = 10) -> tuple[float, float] | None:
+    """The widest run of adjacent tenths of the command's range, at its top or its bottom, over
+    each of which the output rises with the command (least-squares slope over the samples there),
+    where the run as a whole falls, and where over it the output follows the input (correlation at
+    least :data:`RISING_CORRELATION`: a stage swung inside its dead band rises and falls by noise);
+    None where no such run exists or every tenth rises. A butterfly loop (a bipolar stack driven
+    past its coercive voltage) falls as the input rises below it and rises above.
+    """
+    lo, hi = float(np.min(u)), float(np.max(u))
+    if not hi > lo:
+        return None
+    edges = np.linspace(lo, hi, parts + 1)
+    which = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, parts - 1)
+    rises = []
+    for j in range(parts):
+        uu, yy = u[which == j], y[which == j]
+        du = uu - uu.mean() if uu.size > 2 else np.zeros(0)
+        rises.append(bool(du.size and float(np.dot(du, yy - yy.mean())) > 0.0))
+    if all(rises):
+        return None
+    top = next((j for j in range(parts - 1, -1, -1) if not rises[j]), -1) + 1  # rises from tenth `top` up
+    bottom = next((j for j in range(parts) if not rises[j]), parts)  # rises below tenth `bottom`
+    if top >= parts and bottom <= 0:
+        return None
+    part = (float(edges[top]), hi) if parts - top >= bottom else (lo, float(edges[bottom]))
+    inside = (u >= part[0]) & (u <= part[1])
+    if inside.sum() < 3 or not float(np.ptp(y[inside])) > 0.0:
+        return None
+    r = float(np.corrcoef(u[inside], y[inside])[0, 1])
+    return part if r >= RISING_CORRELATION else None
+
+
+
 def turn_indices(u: FloatArray, band: float) -> IntArray:
     """Indices of the input's reversals: running extremes the input then leaves by more than
     ``band`` (noise and dither smaller than that do not count)."""

@@ -78,7 +78,7 @@ from ..models.play import largest_loop_threshold, play_operator
 from ..models.rate import first_order_lag
 from .glitches import SPAN_SHARE as GLITCH_SPAN_SHARE
 from .glitches import bridge_glitches, find_glitches
-from .monotone import range_warnings, rises_with_input, turn_indices
+from .monotone import range_warnings, rises_with_input, rising_part, turn_indices
 from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
 from .result import FitResult, paired_signals, unpack_data
 
@@ -467,14 +467,20 @@ def fit_model(
         r = float(np.corrcoef(us, ys)[0, 1])
         seen = (f"correlation {r:.2f}; input {float(np.min(us)):.4g} to {float(np.max(us)):.4g}, output span "
                 f"{float(np.ptp(ys)):.3g}")
+        rising = rising_part(us, ys)
+        butterfly = ("" if rising is None else
+                     f". It does rise with the input over {rising[0]:.4g}..{rising[1]:.4g}: if its loop is a butterfly "
+                     "(a stack driven past its coercive voltage, which depoles it), record it with the input kept "
+                     "there")
         if r > -WEAK_CORRELATION:  # found by fuzzing: swings inside a dead zone gave r = -0.01 to -0.26
             raise ValueError(
                 f"the output hardly follows the input over this record ({seen}): swings within the stage's dead "
-                "band or play, or a sensor that does not see the stage? Excite a wider range of the input")
+                "band or play, or a sensor that does not see the stage? Excite a wider range of the input"
+                + butterfly)
         raise ValueError(
             f"the output falls as the input rises over this record ({seen}): every model kind here has a "
             "rising loop. A sensor that reads the other way round: negate y first; a stage whose loop falls "
-            "after each reversal for longer than these swings: excite a wider range")
+            "after each reversal for longer than these swings: excite a wider range" + butterfly)
     dt = as_scalar("dt", dt, positive=True) if dt is not None else None
     say = progress or (lambda s: None)
     allowed = _allowed_kinds(kind, kinds, dt)
