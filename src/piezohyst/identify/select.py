@@ -861,10 +861,11 @@ def _choose(best: _Candidate, c: _Candidate) -> _Candidate:
 
 def _lag_sets(ranges: SearchRanges, dt: float | None) -> list[tuple[float, ...]]:
     """The output-lag sets the search tries (the ranges' rate and creep lags), each once; none without ``dt``."""
-    if dt is None:
-        return []
-    return [t for i, t in enumerate((ranges.rate_taus, ranges.creep_taus)) if t and t not in (ranges.rate_taus,
-                                                                                              ranges.creep_taus)[:i]]
+    sets: list[tuple[float, ...]] = []
+    for taus in (ranges.rate_taus, ranges.creep_taus) if dt is not None else ():
+        if taus and taus not in sets:
+            sets.append(taus)
+    return sets
 
 
 def _kind_stage(sc: _Scorer, best: _Candidate, linear: list[str], n: int | None, n_fit: int,
