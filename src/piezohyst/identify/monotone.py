@@ -325,7 +325,6 @@ def rising_part(u: FloatArray, y: FloatArray, parts: int = 10) -> tuple[float, f
     return part if r >= RISING_CORRELATION else None
 
 
-
 def turn_indices(u: FloatArray, band: float) -> IntArray:
     """Indices of the input's reversals: running extremes the input then leaves by more than
     ``band`` (noise and dither smaller than that do not count)."""
