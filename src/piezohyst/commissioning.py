@@ -64,8 +64,10 @@ ablation and in ``tests/test_commission.py``):
    1/3/5 Hz, without -> with): the asymmetric Bouc-Wen stage when its reset keeps that memory
    1.88/2.63/3.35 -> 0.80/0.64/0.88 (and every stage within 0.03 of its figures from a true
    reset); from a true reset, dead zone 1.61/1.33/1.48 -> 0.90/0.63/0.97, falling after reversal
-   0.87/1.00/1.22 -> 0.92/0.98/1.00, Duhem 1.26/1.05/1.10 -> 1.33/0.93/1.13, asymmetric
-   Maxwell-slip 0.21/0.17/0.20 -> 0.27/0.21/0.22. It is off by default: it drives the stage over
+   0.87/1.00/1.22 -> 0.92/0.98/1.00, Duhem 0.26/0.23/0.24 -> 0.25/0.19/0.20 (1.04/1.16/1.30, a
+   Preisach model, before a warm-up pinned the Duhem model's level at rest:
+   :data:`~piezohyst.identify.linear.DUHEM_REST_PIN`), asymmetric
+   Maxwell-slip 0.21/0.17/0.20 -> 0.26/0.21/0.22. It is off by default: it drives the stage over
    its full stroke before every run, and on the VirtualRig (whose reset is a true one) it costs:
    0.67/0.56/0.58 -> 0.80/0.65/0.64, and the tuned integral gain falls from 881 to 16 1/s (with
    the model it then chooses, a 40-operator P-I model, the tuning's first trial already overshoots,
