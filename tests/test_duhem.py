@@ -12,7 +12,7 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import example, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 import piezohyst as ph
@@ -130,6 +130,22 @@ def test_a_coleman_hodgdon_stage_is_fitted_and_compensated(coleman_record, kind)
     cmd = fit.model.compensator(DT).command(x_d)
     s = slice(int(1.0 / DT), None)
     assert np.abs(run(cmd)[s] - x_d[s]).max() < 0.005 * (b - a)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.floats(-200.0, 200.0), min_size=2, max_size=12, unique=True),
+       st.lists(st.floats(-10.0, 10.0), min_size=12, max_size=12))
+def test_the_rest_pin_weights_give_f_at_0_volts(knots, values):
+    """The weights the warm-up's pin uses (:func:`piezohyst.identify.linear._rest_weights`) give
+    a piecewise-linear function's value at 0 V, held constant beyond its knots (as F is)."""
+    from piezohyst.identify.linear import _rest_weights
+
+    k = np.sort(np.array(knots))
+    assume(np.min(np.diff(k)) > 1e-6)
+    f = np.array(values[: k.size])
+    phi = _rest_weights(k)
+    assert phi.min() >= 0.0 and phi.sum() == pytest.approx(1.0)
+    assert phi @ f == pytest.approx(float(np.interp(0.0, k, f)), abs=1e-9)
 
 
 @pytest.mark.slow
