@@ -143,6 +143,10 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("fit_bouc_wen dt 0", lambda: ph.fit_bouc_wen(u, y, 0.0), ("dt",)),
         ("fit_bouc_wen hold", lambda: ph.fit_bouc_wen(u, y, 1e-3, hold="cubic"), ("hold",)),
         ("fit_model kind", lambda: ph.fit_model(u, y, 1e-3, kind="banana"), ("kind", "banana")),
+        # found by fuzzing: a constant output ended in a ZeroDivisionError here; on another record
+        # it was fitted as a flat P-I model (kind="pi") or failed on the asymmetric P-I model's
+        # output map (kind="auto", "too few distinct values")
+        ("fit_model y constant", lambda: ph.fit_model(u, np.full(u.size, 3.0), 1e-3), ("y is constant",)),
         # rig
         ("VirtualRig gamma nan", lambda: ph.VirtualRig(gamma=nan), ("gamma",)),
         ("VirtualRig unknown setting", lambda: ph.VirtualRig(colour=1), ("colour",)),

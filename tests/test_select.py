@@ -541,3 +541,21 @@ def test_an_input_lag_is_kept_where_its_lead_only_wiggles_the_command_the_lag_sm
     ranges = search_ranges(ctl.identification.u, stage.dt, ctl.identification.u.size)
     assert not _chatters(ctl.model, stage.dt, ctl.identification.y, ranges)
     assert _chatters(Oscillating(ctl.model), stage.dt, ctl.identification.y, ranges)
+
+
+def test_an_output_on_two_levels_rules_out_the_output_map_not_the_fit():
+    """Steps between two commands, noise free: the output takes two values, and the asymmetric
+    P-I model's 8-knot map could not be placed; the error ("too few distinct values for an output
+    map") ended ``fit_model(kind="auto")`` for every kind (found by fuzzing). Those candidates are
+    now ruled out; the P-I model fits the two points exactly, and asked for by name the
+    asymmetric P-I model takes the map it can place."""
+    dt = 1e-3
+    t = np.arange(4000) * dt
+    u = np.where(np.sin(2 * np.pi * 2 * t) > 0, 90.0, 10.0)
+    y = ph.PrandtlIshlinskii(np.linspace(0, 40, 8), np.linspace(0.06, 0.01, 8)).simulate(u)
+    fit = ph.fit_model(u, y, dt)
+    assert fit.info["holdout"]["percent_of_span"] < 1e-6
+    ruled_out = [c for c in fit.info["candidates"] if "8 map knots" in c["label"]]
+    assert ruled_out and all(c["holdout_rmse"] == float("inf") for c in ruled_out)
+    named = ph.fit_model(u, y, dt, kind="asymmetric-pi")
+    assert "map knot" in named.info["chosen"] and "8 map knots" not in named.info["chosen"]

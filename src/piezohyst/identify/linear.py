@@ -522,6 +522,11 @@ def _decode_map(tau: FloatArray, knots: FloatArray, centre: float) -> OutputMap:
     return OutputMap(ks, np.array([phi_by_knot[float(k)] for k in ks], dtype=np.float64), centre)
 
 
+class FewOutputLevelsError(ValueError):
+    """The output takes fewer distinct values than an asymmetric P-I model's map has knots (a
+    noise-free record that dwells on a few levels, e.g. steps between two commands)."""
+
+
 def map_knots_for(y: FloatArray, count: int) -> tuple[FloatArray, float]:
     """Knots at the quantiles ``i / (count + 1)`` of ``y`` and the centre between the middle two.
 
@@ -533,7 +538,9 @@ def map_knots_for(y: FloatArray, count: int) -> tuple[FloatArray, float]:
     if q.size != count:
         q = np.unique(np.quantile(np.unique(y), levels))
     if q.size != count:
-        raise ValueError("the output takes too few distinct values for an output map")
+        raise FewOutputLevelsError(f"the output takes {np.unique(y).size} distinct value(s), too few for an "
+                                   f"output map of {count} knots (an asymmetric P-I model): a record that dwells on "
+                                   "a few levels; record one that moves through the range (sinusoids)")
     centre = 0.5 * (q[count // 2 - 1] + q[count // 2])
     return q, float(centre)
 

@@ -79,7 +79,8 @@ from ..models.rate import first_order_lag
 from .glitches import SPAN_SHARE as GLITCH_SPAN_SHARE
 from .glitches import bridge_glitches, find_glitches
 from .monotone import range_warnings, rises_with_input, rising_part, turn_indices
-from .linear import DEFAULT_MARGIN, Prepared, Structure, fit_prepared, fit_structure, mean_slope, prepare
+from .linear import (DEFAULT_MARGIN, FewOutputLevelsError, Prepared, Structure, fit_prepared, fit_structure, mean_slope,
+                     prepare)
 from .result import FitResult, paired_signals, unpack_data
 
 #: Relative drop of the hold-out error a more complex candidate must bring to be preferred.
@@ -309,6 +310,19 @@ class _Scorer:
         pre = self._prepared(replace(st, delay=0))
         t0 = time.perf_counter()
         d, n = st.delay, self.u.size
+        try:
+            return self._fitted(st, pre, d, n, t0)
+        except FewOutputLevelsError:
+            # an output on a few levels has no map to fit: that structure is out (asked for by
+            # name, the refit of the best says why)
+            c = _Candidate(st, st.label(), st.kind, math.inf, math.nan, 0, time.perf_counter() - t0,
+                           [math.inf] * max(len(self.validation), 1))
+            self.tried.append(c)
+            self._done[st] = c
+            return c
+
+    def _fitted(self, st: Structure, pre: Prepared, d: int, n: int, t0: float) -> _Candidate:
+        """:meth:`linear`'s fit of ``st`` (``pre``: its design without the delay ``d``)."""
         if self.validation:
             model, info, _ = fit_prepared(pre, self.y[d:self.n_fit], self.n_fit - d, self.dt, margin=self.margin,
                                           predict=(0, 1))
@@ -463,6 +477,10 @@ def fit_model(
     spikes = find_glitches(ys) if glitches == "bridge" else np.empty(0, dtype=np.int64)
     if spikes.size:
         ys = bridge_glitches(ys, spikes)
+    if not float(np.ptp(ys)) > 0:
+        raise ValueError(f"y is constant ({float(ys[0]):.6g}): the output never moves, so no model of how it "
+                         "follows the input can be identified (a sensor that is not connected or not reading, a "
+                         "stage that is not driven?)")
     if not rises_with_input(us, ys):
         r = float(np.corrcoef(us, ys)[0, 1])
         seen = (f"correlation {r:.2f}; input {float(np.min(us)):.4g} to {float(np.max(us)):.4g}, output span "
