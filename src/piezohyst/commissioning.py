@@ -1344,7 +1344,6 @@ def _judged_with_output_lags(u: FloatArray, y: FloatArray, warmup: int, max_dela
     1.07 with the plain P-I model (a 3.8 ms input lag stood in for the stage's own lag), 0.87 with
     the lags; without the slew limit 1.03."""
     from .identify import Structure, fit_pi, fit_structure, search_ranges
-    from .models.rate import first_order_lag
     from .plant import rate_limited
 
     taus = search_ranges(u[warmup:], 1.0, u.size - warmup, one_rate_rule=False).creep_taus
@@ -1358,7 +1357,7 @@ def _judged_with_output_lags(u: FloatArray, y: FloatArray, warmup: int, max_dela
         return float(fit.rmse)
 
     return {"rmse_as_sent": rmse(u), "rmse_slewed": rmse(rate_limited(u, step) if step < largest else u),
-            "rmse_input_lag": rmse(first_order_lag(u - u[0], math.exp(-1.0 / tau)) + u[0])}
+            "rmse_input_lag": rmse(_through_lag(u, tau))}
 
 
 def _pi_fit_rmse(v: FloatArray, y: FloatArray, warmup: int, max_delay: int) -> float:
@@ -1374,16 +1373,21 @@ def _pi_fit_rmse(v: FloatArray, y: FloatArray, warmup: int, max_delay: int) -> f
         return math.inf
 
 
+def _through_lag(u: FloatArray, tau: float) -> FloatArray:
+    """``u`` through a first-order lag of ``tau`` samples, from rest at its first command."""
+    from .models.rate import first_order_lag
+
+    return first_order_lag(u - u[0], math.exp(-1.0 / tau)) + u[0]
+
+
 def _best_input_lag(u: FloatArray, y: FloatArray, warmup: int, max_delay: int) -> tuple[float, float]:
     """The time constant (samples) of the first-order lag, from half a sample to a twentieth of
     the record, through which a 20-operator P-I model fits ``u`` to ``y`` best, and that fit's
     RMS error: octaves, then bounded Brent between the best's neighbours."""
     from scipy.optimize import minimize_scalar
 
-    from .models.rate import first_order_lag
-
     def rmse(x: float) -> float:  # from rest at the first command
-        return _pi_fit_rmse(first_order_lag(u - u[0], math.exp(-1.0 / 2.0 ** x)) + u[0], y, warmup, max_delay)
+        return _pi_fit_rmse(_through_lag(u, 2.0 ** x), y, warmup, max_delay)
 
     grid = np.arange(-1.0, math.log2(max(u.size / 20.0, 1.0)) + 1e-9, 1.0)
     if grid.size == 0:
