@@ -39,7 +39,7 @@ from .._numba import njit
 from .._validation import FloatArray
 from ..models.asymmetric_pi import AsymmetricPI, OutputMap
 from ..models.bouc_wen_hysteresis import BoucWenHysteresis, max_unit_slope, unit_hysteresis
-from ..models.duhem import GeneralizedDuhem, duhem_columns
+from ..models.duhem import GeneralizedDuhem, _segment, duhem_columns
 from ..models.pi import PrandtlIshlinskii, equal_thresholds
 from ..models.play import largest_loop_threshold, play_moves_both_ways, play_outputs_strided_into
 from ..models.preisach import Preisach, demagnetised_state, grid_size, grid_thresholds, preisach_outputs_into
@@ -718,17 +718,12 @@ def fit_prepared(pre: Prepared, y: FloatArray, rows: int, dt: float | None, *,
 
 def _rest_weights(knots: FloatArray) -> FloatArray:
     """The weights of a piecewise-linear function's values at ``knots`` that give its value at
-    0 V (held constant beyond the ends, as :class:`~piezohyst.models.duhem.GeneralizedDuhem`'s F)."""
+    0 V, as :class:`~piezohyst.models.duhem.GeneralizedDuhem` reads F (held constant beyond the
+    ends: the model's own :func:`~piezohyst.models.duhem._segment`)."""
+    lo, hi, w = _segment(0.0, np.ascontiguousarray(knots, dtype=np.float64))
     phi = np.zeros(knots.size)
-    if knots[0] >= 0.0:
-        phi[0] = 1.0
-    elif knots[-1] <= 0.0:
-        phi[-1] = 1.0
-    else:
-        hi = int(np.searchsorted(knots, 0.0, side="right"))
-        lo = hi - 1
-        w = (0.0 - knots[lo]) / (knots[hi] - knots[lo])
-        phi[lo], phi[hi] = 1.0 - w, w
+    phi[lo] += 1.0 - w
+    phi[hi] += w
     return phi
 
 
