@@ -173,7 +173,7 @@ from .data import Dataset
 from .identify import FitResult, fit_model
 from .identify.select import MODE_SEARCH_TOP, structural_mode_search
 from .identify.monotone import (DEAD_BINS, DeadRange, DeadRangeWarning, MonotoneRange, NotMonotoneWarning, dead_range,
-                                monotone_range, rises_with_input, rising_part)
+                                monotone_range, rises_with_input, rising_part, butterfly_hint)
 from .models.base import Compensator, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
                     plant_u_range)
@@ -1632,10 +1632,9 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
             f"the plant's displacement falls as the command rises (its gain is negative, e.g. a sensor "
             f"mounted the other way round): make {type(plant).__name__}.step() return the displacement "
             "with the sign that rises with the command (multiply it by -1)"
-            + ("" if rising is None else
-               f". It does rise with the command over {rising[0]:.4g}..{rising[1]:.4g} V: if its loop is a "
-               "butterfly (a stack driven past its coercive voltage, which depoles it), keep the command "
-               f"where it rises (commission(plant, u_range=({rising[0]:.4g}, {rising[1]:.4g})))"))
+            + butterfly_hint(rising, "command", " V", "keep the command where it rises "
+                             + ("" if rising is None else
+                                f"(commission(plant, u_range=({rising[0]:.4g}, {rising[1]:.4g})))")))
     mono = monotone_range(ds.u[warmup:], ds.y[warmup:])
     # an amplifier slower than the excitation, looked for on every run whose step limit the caller
     # left to the default, before a model is fitted to the distorted run: where an amplifier lag

@@ -288,6 +288,16 @@ def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
     return not r < 0
 
 
+def butterfly_hint(rising: tuple[float, float] | None, what: str, unit: str, keep: str) -> str:
+    """The sentence an error about a falling record adds where :func:`rising_part` found a part of
+    the range that rises (``""`` where it found none): ``what`` rises over that part (``unit``
+    after its end), and ``keep`` says how to keep to it."""
+    if rising is None:
+        return ""
+    return (f". It does rise with the {what} over {rising[0]:.4g}..{rising[1]:.4g}{unit}: if its loop is a "
+            f"butterfly (a stack driven past its coercive voltage, which depoles it), {keep}")
+
+
 #: :func:`rising_part` names a part of the range only where the output follows the input over it
 #: this well (correlation).
 RISING_CORRELATION = 0.5

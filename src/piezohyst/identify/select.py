@@ -78,7 +78,7 @@ from ..models.play import largest_loop_threshold, play_operator
 from ..models.rate import first_order_lag
 from .glitches import SPAN_SHARE as GLITCH_SPAN_SHARE
 from .glitches import bridge_glitches, find_glitches
-from .monotone import range_warnings, rises_with_input, rising_part, turn_indices
+from .monotone import butterfly_hint, range_warnings, rises_with_input, rising_part, turn_indices
 from .linear import (DEFAULT_MARGIN, FewOutputLevelsError, Prepared, Structure, fit_prepared, fit_structure, mean_slope,
                      prepare)
 from .result import FitResult, paired_signals, unpack_data
@@ -311,15 +311,15 @@ class _Scorer:
         t0 = time.perf_counter()
         d, n = st.delay, self.u.size
         try:
-            return self._fitted(st, pre, d, n, t0)
+            c = self._fitted(st, pre, d, n, t0)
         except FewOutputLevelsError:
             # an output on a few levels has no map to fit: that structure is out (asked for by
             # name, the refit of the best says why)
             c = _Candidate(st, st.label(), st.kind, math.inf, math.nan, 0, time.perf_counter() - t0,
                            [math.inf] * max(len(self.validation), 1))
-            self.tried.append(c)
-            self._done[st] = c
-            return c
+        self.tried.append(c)
+        self._done[st] = c
+        return c
 
     def _fitted(self, st: Structure, pre: Prepared, d: int, n: int, t0: float) -> _Candidate:
         """:meth:`linear`'s fit of ``st`` (``pre``: its design without the delay ``d``)."""
@@ -342,8 +342,6 @@ class _Scorer:
             score, per = math.inf, [math.inf] * len(per)  # its inverse's gain could exceed 1 / margin
         c = _Candidate(st, st.label(), st.kind, score, fit_rmse, int(info["n_parameters"]),
                        time.perf_counter() - t0, per, unmasked)
-        self.tried.append(c)
-        self._done[st] = c
         return c
 
 
@@ -486,10 +484,7 @@ def fit_model(
         seen = (f"correlation {r:.2f}; input {float(np.min(us)):.4g} to {float(np.max(us)):.4g}, output span "
                 f"{float(np.ptp(ys)):.3g}")
         rising = rising_part(us, ys)
-        butterfly = ("" if rising is None else
-                     f". It does rise with the input over {rising[0]:.4g}..{rising[1]:.4g}: if its loop is a butterfly "
-                     "(a stack driven past its coercive voltage, which depoles it), record it with the input kept "
-                     "there")
+        butterfly = butterfly_hint(rising, "input", "", "record it with the input kept there")
         if r > -WEAK_CORRELATION:  # found by fuzzing: swings inside a dead zone gave r = -0.01 to -0.26
             raise ValueError(
                 f"the output hardly follows the input over this record ({seen}): swings within the stage's dead "
