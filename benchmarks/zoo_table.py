@@ -52,6 +52,10 @@ def row(stage) -> str:  # noqa: ANN001 - a zoo Stage
         kind = "asymmetric P-I"
     if st.get("taus_s"):
         kind += ", lags"
+    start = ctl.fit.info.get("history")
+    if start:  # fit_model's initial state: after a history down to the bottom or up to the top
+        pts = start["waypoints_v"]
+        kind += ", from below" if pts[1] < pts[0] else ", from above"
     return (f"| {name} ({kind}; ki {ctl.tuning.ki:.3g} 1/s) | {' / '.join(f'{v:.2f}' for v in ff)} | "
             f"{' / '.join(f'{v:.2f}' for v in fbl)} | {' / '.join(f'{v:.2f}' for v in floor)} |")
 

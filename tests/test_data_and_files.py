@@ -103,7 +103,7 @@ def test_model_files_round_trip_and_refuse_overwrite(tmp_path):
         assert ph.load_model(p) == model
         doc = json.loads(p.read_text())
         # no operating range: the oldest version that holds it, which earlier releases read too
-        assert doc["schema"] == "piezohyst.model/2" and SCHEMA_VERSION == 5
+        assert doc["schema"] == "piezohyst.model/2" and SCHEMA_VERSION == 6
         assert doc["producer"].startswith("piezohyst")
         with pytest.raises(FileExistsError, match="--force"):
             ph.save_model(model, p)

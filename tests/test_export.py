@@ -92,6 +92,11 @@ def example_models():
         "rate-dependent (Bouc-Wen hysteresis)": ph.RateDependent(
             static=ph.BoucWenHysteresis(d1=0.021, alpha=0.4, beta=0.035, gamma=0.01), taus=[0.003, 0.2],
             lag_weights=[0.002, -0.0007], dt=DT, input_tau=5e-4),
+        # a stage that rests after coming down from the top of its range: the C reset replays the
+        # model's output along that history through the inverse, as the Python compensator does
+        "after-history (P-I)": ph.AfterHistory(pi, (0.0, 100.0, 0.0), 30),
+        "after-history (rate-dependent Preisach)": ph.AfterHistory(
+            ph.RateDependent(static=pre, taus=[0.005], lag_weights=[0.002], dt=DT), (0.0, -10.0, 0.0), 200, 100),
     }
 
 

@@ -70,6 +70,14 @@ EXAMPLES = {
         lambda: ph.AsymmetricPI(_pi(), ph.OutputMap([0.5, 1.5], [0.4, -0.5], 1.0)),
         lambda: ph.AsymmetricPI(ph.RateDependent(_pi(), [0.01], [0.001], DT), ph.OutputMap([0.8], [0.3], 0.5)),
     ],
+    "after-history": [
+        lambda: ph.AfterHistory(_pi(), (0.0, 100.0, 0.0), 40),
+        lambda: ph.AfterHistory(_preisach(), (0.0, 100.0, 20.0), 25),
+        lambda: ph.AfterHistory(ph.RateDependent(_pi(), [0.005, 0.05], [0.001, -0.0015], DT, input_tau=0.002),
+                                (0.0, 90.0, 0.0), 200, 300),
+        lambda: ph.AfterHistory(_duhem_bipolar(), (0.0, -30.0, 0.0), 50),
+        lambda: ph.AfterHistory(ph.AsymmetricPI(_pi(), ph.OutputMap([0.5, 1.5], [0.4, -0.5], 1.0)), (0.0, 100.0, 0.0), 40),
+    ],
 }
 ALL = [(k, i, f) for k, fs in EXAMPLES.items() for i, f in enumerate(fs)]
 IDS = [f"{k}-{i}" for k, i, _ in ALL]

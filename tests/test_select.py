@@ -559,3 +559,92 @@ def test_an_output_on_two_levels_rules_out_the_output_map_not_the_fit():
     assert ruled_out and all(c["holdout_rmse"] == float("inf") for c in ruled_out)
     named = ph.fit_model(u, y, dt, kind="asymmetric-pi")
     assert "map knot" in named.info["chosen"] and "8 map knots" not in named.info["chosen"]
+
+
+def _came_from(lo, seed):
+    """A stage of 60 play operators of random thresholds and a saturating, asymmetric output
+    (no kind here is exact for it), at rest at 0 V in a range of ``lo`` .. 100 V, whose last move
+    before each record was down to ``lo`` and back (``lo = 0``: a demagnetised stage)."""
+    from piezohyst.models.play import play_operator
+
+    rng = np.random.default_rng(seed)
+    r = np.sort(rng.uniform(0.0, 70.0, 60))
+    w = rng.uniform(0.2, 1.0, 60) * np.exp(-r / 30.0)
+
+    def stage(u):
+        noise = np.random.default_rng(seed + u.size)  # the same record, the same noise
+        past = np.concatenate([np.linspace(0.0, lo, 50), np.linspace(lo, 0.0, 50)])
+        x = np.concatenate([past, u])
+        p = 0.01 * sum(wi * play_operator(x, ri) for wi, ri in zip(w, r)) + 0.004 * x
+        return 12.0 * np.tanh(p / 3.0 + 0.1)[past.size:] + noise.normal(0.0, 2e-3, u.size)
+
+    return stage
+
+
+@pytest.mark.parametrize("seed", [2, 4])
+def test_a_stage_that_came_up_from_the_bottom_is_fitted_from_there(seed):
+    """Issue 11, fit any stage: every kind starts de-energised, but a stage resting above the
+    bottom of its range after coming up from it sits on its rising branch, and a model started
+    elsewhere mispredicts whatever the record does first. ``history="auto"`` tries the two
+    histories the record's range allows and keeps the one the held-out part prefers: here the
+    one from below, and a new record that starts by rising from rest is predicted 3x better;
+    on the same stage demagnetised the start stays de-energised (or changes nothing)."""
+    lo, hi = -60.0, 100.0
+    t = np.arange(6000)
+    amp = np.interp(t, [0, 1500, 6000], [1.0, 1.0, 0.3])
+    u = np.concatenate([np.linspace(0.0, hi, 200), 0.5 * (lo + hi) + 0.5 * (hi - lo) * np.cos(2 * np.pi * t / 750) * amp])
+    v = np.concatenate([np.linspace(0.0, 80.0, 300), 20.0 + 40.0 * np.cos(2 * np.pi * np.arange(3000) / 1000)])
+    kinds = ["prandtl-ishlinskii", "asymmetric-pi"]
+
+    def fitted(stage, history):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            f = ph.fit_model(u, stage(u), kinds=kinds, history=history)
+        yv = stage(v)
+        return f, float(np.sqrt(np.mean((yv - f.model.predict(v)) ** 2)))
+
+    stage = _came_from(lo, seed)
+    plain, e_plain = fitted(stage, "none")
+    found, e_found = fitted(stage, "auto")
+    assert not isinstance(plain.model, ph.AfterHistory) and isinstance(found.model, ph.AfterHistory)
+    assert found.model.waypoints == (0.0, lo, 0.0) and "from below" in found.info["chosen"]
+    assert [r["chosen"] for r in found.info["initial_state"]].count(True) == 1
+    assert e_found < e_plain / 3
+    assert found.info["holdout"]["rmse"] < plain.info["holdout"]["rmse"]
+    # the file keeps the history
+    back = ph.models.base.model_from_dict("after-history", found.model.to_dict())
+    assert np.array_equal(back.predict(v), found.model.predict(v))
+    demag = _came_from(0.0, seed)
+    _, e_plain = fitted(demag, "none")
+    f, e_auto = fitted(demag, "auto")
+    assert not isinstance(f.model, ph.AfterHistory) and e_auto == e_plain, f.info["chosen"]
+
+
+def test_the_command_line_fits_the_start_and_the_file_keeps_it(tmp_path, capsys):
+    """``piezohyst identify --model auto`` on the record of a stage that came up from the bottom
+    writes an after-history model (schema 6) whose compensator the C export replays at reset;
+    ``--history none`` fits from the de-energised state; ``--model after-history`` forces it."""
+    import json
+
+    from piezohyst.cli import main
+
+    lo, hi = -60.0, 100.0
+    t = np.arange(6000)
+    amp = np.interp(t, [0, 1500, 6000], [1.0, 1.0, 0.3])
+    u = np.concatenate([np.linspace(0.0, hi, 200), 0.5 * (lo + hi) + 0.5 * (hi - lo) * np.cos(2 * np.pi * t / 750) * amp])
+    ph.save_dataset(tmp_path / "came.csv", ph.Dataset(t=np.arange(u.size) * DT, u=u, y=_came_from(lo, 2)(u)))
+    out = {}
+    for name, extra in (("auto", []), ("none", ["--history", "none"]), ("forced", ["--model", "after-history"])):
+        args = ["identify", str(tmp_path / "came.csv"), "--json", "-o", str(tmp_path / f"{name}.json")]
+        assert main(args + (extra if extra[:1] == ["--model"] else ["--model", "auto", *extra])) == 0
+        out[name] = json.loads(capsys.readouterr().out)
+    assert out["auto"]["model"] == "after-history" and out["forced"]["model"] == "after-history"
+    assert out["none"]["model"] != "after-history"
+    assert out["auto"]["parameters"]["waypoints"] == [0.0, lo, 0.0]
+    doc = json.loads((tmp_path / "auto.json").read_text())
+    assert doc["schema"] == "piezohyst.model/6"
+    model = ph.load_model(tmp_path / "auto.json")
+    assert isinstance(model, ph.AfterHistory) and model.is_invertible
+    # the compensator starts where the history left the model: it inverts the model's own output
+    y = model.predict(u, DT)
+    assert np.abs(model.predict(model.compensator(DT).command(y), DT) - y).max() < 1e-6 * np.ptp(y)

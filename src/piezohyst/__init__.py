@@ -36,7 +36,7 @@ _LAZY: dict[str, str] = {
     "fit_rate_pi": "identify",
     "fit_model": "identify", "fit_asymmetric_pi": "identify", "fit_preisach": "identify",
     "fit_rate_dependent": "identify",
-    "AsymmetricPI": "models", "BoucWen": "models", "BoucWenHysteresis": "models", "BoucWenStepper": "models", "Compensator": "models",
+    "AfterHistory": "models", "AsymmetricPI": "models", "BoucWen": "models", "BoucWenHysteresis": "models", "BoucWenStepper": "models", "Compensator": "models",
     "GeneralizedDuhem": "models",
     "HysteresisModel": "models", "OutputMap": "models", "PIStepper": "models", "Preisach": "models",
     "PrandtlIshlinskii": "models", "RateDependent": "models", "RateDependentPI": "models",
@@ -97,7 +97,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .identify import (ExtrapolationWarning, FitResult, fit_asymmetric_pi, fit_bouc_wen,  # noqa: F401
                            fit_model, fit_pi, fit_preisach, fit_rate_dependent, fit_rate_pi)
     from .modelio import ModelFileError, load_model, save_model  # noqa: F401
-    from .models import (AsymmetricPI, BoucWen, BoucWenHysteresis, BoucWenStepper, Compensator,  # noqa: F401
+    from .models import (AfterHistory, AsymmetricPI, BoucWen, BoucWenHysteresis, BoucWenStepper, Compensator,  # noqa: F401
                          GeneralizedDuhem, HysteresisModel,
                          OutputMap, PIStepper, PrandtlIshlinskii, Preisach, RateDependent, RateDependentPI,
                          equal_thresholds, kinds, play_operator)

@@ -48,10 +48,12 @@ SCHEMA_NAME = "piezohyst.model"
 #: Version 5: a rate-dependent model may carry the limit of its compensator's input-lag lead
 #: (``input_lead_gain``); a reader that dropped it would send the exact lead's steps (dozens of
 #: times the reference's behind a long amplifier lag), so older readers refuse such a file.
-SCHEMA_VERSION = 5
+#: Version 6: the after-history kind (a model started from the state a known input history
+#: leaves; a version 5 reader would call it an unknown kind).
+SCHEMA_VERSION = 6
 #: The schema version that introduced each kind after version 2 (a file holding one, at any depth,
 #: carries at least that version).
-KIND_SINCE = {"generalized-duhem": 4}
+KIND_SINCE = {"generalized-duhem": 4, "after-history": 6}
 #: Deepest nesting a model file may have (wrappers hold models; nothing legitimate nests deeper).
 MAX_DEPTH = 32
 

@@ -155,7 +155,7 @@ def _select(ph: Any, train: Any, kind: str, args: argparse.Namespace, vsets: lis
     """``fit_model`` with a spinner naming the stage (on stderr; nothing with --json)."""
     opts = dict(validation=vsets or None, delay=args.delay, n=args.n, seed=args.seed,
                 bouc_wen_options={"max_iter": args.iterations, "polish": not args.no_polish}, warmup=args.warmup,
-                glitches="keep" if args.keep_glitches else "bridge")
+                glitches="keep" if args.keep_glitches else "bridge", history=args.history)
     dt = train.dt
     if not show:
         return ph.fit_model(train.u, train.y, dt, kind, **opts)
@@ -252,6 +252,11 @@ def register(sub: Any, add: Any) -> None:
                    help="samples at the start of the training part that only set the model's state (e.g. a "
                    "conditioning sweep over the whole range): run through, neither fitted nor scored "
                    "(--method select; default 0)")
+    p.add_argument("--history", choices=("auto", "none"), default="auto",
+                   help="the stage's state at the record's start: 'auto' (default, --method select) also fits the "
+                   "chosen structure after a history down to the bottom of the record's input and back, and up to "
+                   "its top and back (a stage at rest keeps the branch it came down or up on), and keeps one where "
+                   "it predicts the held-out part better; 'none' starts every model de-energised")
     p.add_argument("--keep-glitches", action="store_true",
                    help="fit isolated gross glitches of the output as they are (default, with --method select: "
                    "one or two samples off their neighbours by more than 5 %% of the span are bridged, with a warning)")

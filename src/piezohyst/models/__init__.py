@@ -12,8 +12,10 @@ from .preisach import Preisach
 from .asymmetric_pi import AsymmetricPI, OutputMap
 from .bouc_wen_hysteresis import BoucWenHysteresis
 from .duhem import GeneralizedDuhem
+from .history import AfterHistory
 
 __all__ = [
+    "AfterHistory",
     "AsymmetricPI",
     "BoucWen",
     "BoucWenHysteresis",
