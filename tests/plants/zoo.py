@@ -335,3 +335,60 @@ def zoo(seed: int = 0) -> list[Stage]:
               AsymmetricMaxwellSlip(100.0, 20.0), 2e-4, (0.0, 100.0), tau_amp=1e-4, kv=((0.05, 0.01),),
               fn_hz=180.0, zeta=0.01, noise_um=0.004, delay_samples=1, seed=seed),
     ]
+
+
+class Shifted:
+    """An element defined from 0 V, driven from ``lo`` (a bipolar amplifier on a stage whose
+    hysterons start at the bottom of its range)."""
+
+    def __init__(self, element: object, lo: float):
+        self.element, self.lo = element, lo
+
+    def reset(self) -> None:
+        self.element.reset()  # type: ignore[attr-defined]
+
+    def step(self, v: float) -> float:
+        return self.element.step(v - self.lo)  # type: ignore[attr-defined,no-any-return]
+
+
+@dataclass
+class TwoModeStage(Stage):
+    """A stage whose output passes through two structural modes in parallel: ``1 - share`` of it
+    through the first (``fn_hz``, ``zeta``), ``share`` through a second, higher one (``fn2_hz``,
+    ``zeta2``), as a stage carrying a payload whose mount has a mode of its own."""
+
+    fn2_hz: float = 1000.0
+    zeta2: float = 0.03
+    share: float = 0.1
+
+    def __post_init__(self) -> None:
+        self._ad2, self._bd2 = _mechanics(self.fn2_hz, self.zeta2, self.dt)
+        super().__post_init__()
+
+    def reset(self) -> None:
+        super().reset()
+        self._x2 = np.zeros(2)
+
+    def step(self, u: float) -> float:
+        u = float(u)
+        if not math.isfinite(u):
+            raise ValueError("command must be finite")
+        lo, hi = self.u_range
+        if u < lo or u > hi:
+            self.clipped += 1
+            u = min(max(u, lo), hi)
+        a = self._amp
+        self._v = a * self._v + (1 - a) * u
+        h = self.element.step(self._v)  # type: ignore[attr-defined]
+        f = h
+        if self.kv:
+            self._kv_s = self._kv_a * self._kv_s + (1 - self._kv_a) * h
+            f = h + float(self._kv_g @ self._kv_s)
+        self._x = self._ad @ self._x + self._bd * f
+        self._x2 = self._ad2 @ self._x2 + self._bd2 * f
+        y = (1 - self.share) * float(self._x[0]) + self.share * float(self._x2[0])
+        y += self.noise_um * float(self._rng.standard_normal())
+        if self.delay_samples:
+            self._line.append(y)
+            y = self._line.pop(0)
+        return y
