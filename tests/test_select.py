@@ -614,6 +614,13 @@ def test_a_stage_that_came_up_from_the_bottom_is_fitted_from_there(seed):
     # the file keeps the history
     back = ph.models.base.model_from_dict("after-history", found.model.to_dict())
     assert np.array_equal(back.predict(v), found.model.predict(v))
+    # chosen on a validation record (which starts at rest too, and is simulated after the history)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        on_v = ph.fit_model(u, stage(u), kinds=kinds, validation=[(v, stage(v))])
+    assert isinstance(on_v.model, ph.AfterHistory) and on_v.model.waypoints == (0.0, lo, 0.0)
+    scores = {r["start"].split(" (")[0]: r["holdout_rmse"] for r in on_v.info["initial_state"]}
+    assert scores["after a history from below"] < scores["de-energised"] / 2, scores
     demag = _came_from(0.0, seed)
     _, e_plain = fitted(demag, "none")
     f, e_auto = fitted(demag, "auto")

@@ -257,6 +257,9 @@ class _Scorer:
         self.margin = margin
         #: the samples before the record that only set the operators' states (fit_model's warmup)
         self.warmup = np.empty(0) if warmup is None else warmup
+        #: the warm-up is a history the stage's state at rest comes from (fit_model's ``history``):
+        #: the validation sets, which also start at rest, are simulated after it too
+        self.history = False
         self._u_states = np.concatenate([self.warmup, u]) if self.warmup.size else u
         #: the search fits on every stride-th row (at most SEARCH_ROWS rows); the refit uses all
         self.stride = max(1, n_fit // SEARCH_ROWS) if stride is None else int(stride)
@@ -278,7 +281,10 @@ class _Scorer:
             return r, [r]
         out = []
         for uv, yv, first in self.validation:
-            p = model.predict(uv, self.dt)
+            if self.history:  # each set starts after the same history as the record
+                p = model.predict(np.concatenate([self.warmup, uv]), self.dt)[self.warmup.size:]
+            else:
+                p = model.predict(uv, self.dt)
             resid = (yv[delay:] - p[: p.size - delay] if delay else yv - p)[max(first - delay, 0):]
             out.append(float(np.sqrt(np.mean(resid**2))))
         return float(np.mean(out)), out
@@ -286,8 +292,10 @@ class _Scorer:
     def sibling(self) -> _Scorer:
         """A scorer of the same data and settings with caches of its own (for a search in
         another thread)."""
-        return _Scorer(self.u, self.y, self.dt, self.n_fit, self.validation, self.margin,
+        twin = _Scorer(self.u, self.y, self.dt, self.n_fit, self.validation, self.margin,
                        warmup=self.warmup, stride=self.stride)
+        twin.history = self.history
+        return twin
 
     def adopt(self, other: _Scorer) -> None:
         """The candidates ``other`` tried that this one has not, appended in ``other``'s order."""
@@ -488,8 +496,9 @@ def fit_model(
         stage 7); ``"none"`` fits from the de-energised state. Default: ``"auto"`` for
         ``kind="auto"``, ``"none"`` for a kind asked for by name (its model is returned as that
         kind); ``kind="after-history"`` chooses the better of the two histories whatever the
-        de-energised start scores (among the linear kinds). Not with ``warmup`` (the warm-up sets
-        the state) nor with ``validation`` sets, where ``"auto"`` fits from the de-energised state.
+        de-energised start scores (among the linear kinds). With ``validation`` sets each set is
+        simulated after the history too (it starts at rest, as the record does). Not with
+        ``warmup`` (the warm-up sets the state), where ``"auto"`` fits from the de-energised state.
 
     Returns
     -------
@@ -504,9 +513,8 @@ def fit_model(
     if history not in (None, "auto", "none"):
         raise ValueError(f"history must be 'auto' or 'none', got {history!r}")
     if kind != "auto" and kind_class(kind) is AfterHistory:
-        if warmup or validation:
-            raise ValueError("kind='after-history' chooses the stage's start on the record's own later part: not with "
-                             "warmup (which sets the state) or validation sets")
+        if warmup:
+            raise ValueError("kind='after-history' fits the stage's start: not with a warmup, which sets the state")
         kind, kinds, history = "auto", [k for k in (kinds or _LINEAR_KINDS) if kind_class(k) is not AfterHistory], "force"
     elif history is None:
         history = "auto" if kind == "auto" else "none"
@@ -631,7 +639,7 @@ def fit_model(
                                  seed, bouc_wen_options)
         best = bw if best is None else _prefer(best, bw) if bw.score < best.score else best
     assert best is not None
-    if history != "none" and not w and not vsets and isinstance(best.structure, Structure):
+    if history != "none" and not w and isinstance(best.structure, Structure):
         say("initial state")
         best, start, starts = _initial_state(sc, best, ranges, delay, linear, n, kind_name, history == "force",
                                              searched=delay == "auto" and max_delay is None)
@@ -753,7 +761,8 @@ def _initial_state(sc: _Scorer, best: _Candidate, ranges: SearchRanges, delay: A
     table = [{"start": "de-energised", "label": best.label, "holdout_rmse": best.score}]
     chosen: tuple[_Candidate, AfterHistory | None] = (best, None)
     for h in _histories(sc.u, sc.n_fit, sc.dt, sc.stride):
-        s = _Scorer(sc.u, sc.y, sc.dt, sc.n_fit, [], sc.margin, warmup=h.history(), stride=sc.stride)
+        s = _Scorer(sc.u, sc.y, sc.dt, sc.n_fit, sc.validation, sc.margin, warmup=h.history(), stride=sc.stride)
+        s.history = True
         c = _one_rate_delay(s, _polish(s, s.linear(best.structure), ranges, delay, linear, n, kind_name), ranges,
                             searched)
         for t in s.tried:
