@@ -435,3 +435,13 @@ def test_a_long_input_lags_lead_limited_to_a_gain(tmp_path):
     # streaming equals the batch command
     comp = limited.compensator()
     np.testing.assert_allclose([comp.step(float(t)) for t in x], ul, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("waypoints", [None, 5, [0.0], [1e308, -1e308], ["a", "b"]])
+def test_an_after_history_file_with_bad_waypoints_is_refused_by_name(waypoints):
+    """Found by fuzzing the new kind's files: ``None`` gave "'NoneType' object is not iterable",
+    and waypoints 1e308 V apart loaded and predicted NaN."""
+    params = EXAMPLES["after-history"][0]().to_dict()
+    params["waypoints"] = waypoints
+    with pytest.raises(ValueError, match="waypoints"):
+        ph.AfterHistory.from_dict(params)

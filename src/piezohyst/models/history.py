@@ -78,7 +78,7 @@ class AfterHistory:
             raise TypeError("model is already after a history: give one history (its waypoints joined)")
         try:
             pts = tuple(float(v) for v in self.waypoints)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError):  # not numbers, or not a sequence (None)
             raise ValueError(f"waypoints must be numbers (V), got {self.waypoints!r}") from None
         if len(pts) < 2 or not all(math.isfinite(v) for v in pts):
             raise ValueError(f"waypoints must be at least two finite values (V), got {list(pts)}")
@@ -90,6 +90,10 @@ class AfterHistory:
         n = (len(pts) - 1) * int(self.leg_samples) + int(self.hold_samples) + 1
         if n > MAX_HISTORY_SAMPLES:
             raise ValueError(f"the history is {n} samples long; at most {MAX_HISTORY_SAMPLES}")
+        with np.errstate(all="ignore"):
+            finite = bool(np.all(np.isfinite(history_input(pts, int(self.leg_samples), 0))))
+        if not finite:
+            raise ValueError(f"waypoints {list(pts)} V give a history that is not finite (too far apart)")
         object.__setattr__(self, "waypoints", pts)
         object.__setattr__(self, "leg_samples", int(self.leg_samples))
         object.__setattr__(self, "hold_samples", int(self.hold_samples))
@@ -159,7 +163,7 @@ class AfterHistory:
     def from_dict(cls, params: dict[str, Any]) -> "AfterHistory":
         """Rebuild the model from :meth:`to_dict`'s data."""
         return cls(model=nested_from_dict(params["model"], "the model of an after-history model"),
-                   waypoints=tuple(params["waypoints"]), leg_samples=params["leg_samples"],
+                   waypoints=params["waypoints"], leg_samples=params["leg_samples"],
                    hold_samples=params.get("hold_samples", 0))
 
     def describe(self) -> dict[str, Any]:
