@@ -294,12 +294,16 @@ class Stage:
         if self.kv:
             self._kv_s = self._kv_a * self._kv_s + (1 - self._kv_a) * h
             f = h + float(self._kv_g @ self._kv_s)
-        self._x = self._ad @ self._x + self._bd * f
-        y = float(self._x[0]) + self.noise_um * float(self._rng.standard_normal())
+        y = self._displacement(f) + self.noise_um * float(self._rng.standard_normal())
         if self.delay_samples:
             self._line.append(y)
             y = self._line.pop(0)
         return y
+
+    def _displacement(self, f: float) -> float:
+        """The structure's displacement under the force ``f`` (µm): one mode."""
+        self._x = self._ad @ self._x + self._bd * f
+        return float(self._x[0])
 
     def excite(self, u):  # noqa: ANN001 - a Dataset of an open-loop run, like VirtualRig.excite
         import piezohyst as ph
@@ -369,26 +373,7 @@ class TwoModeStage(Stage):
         super().reset()
         self._x2 = np.zeros(2)
 
-    def step(self, u: float) -> float:
-        u = float(u)
-        if not math.isfinite(u):
-            raise ValueError("command must be finite")
-        lo, hi = self.u_range
-        if u < lo or u > hi:
-            self.clipped += 1
-            u = min(max(u, lo), hi)
-        a = self._amp
-        self._v = a * self._v + (1 - a) * u
-        h = self.element.step(self._v)  # type: ignore[attr-defined]
-        f = h
-        if self.kv:
-            self._kv_s = self._kv_a * self._kv_s + (1 - self._kv_a) * h
-            f = h + float(self._kv_g @ self._kv_s)
+    def _displacement(self, f: float) -> float:
         self._x = self._ad @ self._x + self._bd * f
         self._x2 = self._ad2 @ self._x2 + self._bd2 * f
-        y = (1 - self.share) * float(self._x[0]) + self.share * float(self._x2[0])
-        y += self.noise_um * float(self._rng.standard_normal())
-        if self.delay_samples:
-            self._line.append(y)
-            y = self._line.pop(0)
-        return y
+        return (1 - self.share) * float(self._x[0]) + self.share * float(self._x2[0])
