@@ -445,3 +445,27 @@ def test_an_after_history_file_with_bad_waypoints_is_refused_by_name(waypoints):
     params["waypoints"] = waypoints
     with pytest.raises(ValueError, match="waypoints"):
         ph.AfterHistory.from_dict(params)
+
+
+@settings(max_examples=25, deadline=None)
+@given(points=st.lists(st.floats(-40.0, 140.0), min_size=2, max_size=5), leg=st.integers(1, 60),
+       hold=st.integers(0, 20), which=st.sampled_from(["pi", "preisach", "duhem"]), seed=st.integers(0, 1000))
+def test_a_model_after_a_history_is_the_model_run_through_it(points, leg, hold, which, seed):
+    """The law of the after-history kind, for any history: its output is the inner model's over
+    the history and the signal, less the history; its stepper gives the same; and its compensator,
+    started where the history left the inverse, gives commands that reproduce any output of the
+    model to rounding (the inner inverses here are exact)."""
+    inner = {"pi": _pi, "preisach": _preisach, "duhem": _duhem_bipolar}[which]()
+    if which == "duhem":  # its operating range: -30..100 V
+        points = [min(max(p, -30.0), 100.0) for p in points]
+    m = ph.AfterHistory(inner, tuple(points), leg, hold)
+    rng = np.random.default_rng(seed)
+    u = np.clip(np.cumsum(rng.normal(0.0, 4.0, 400)) + 40.0, -30.0 if which == "duhem" else -40.0, 100.0)
+    h = m.history()
+    assert h.size == (len(points) - 1) * leg + hold + 1 and h[0] == points[0] and h[-1] == points[-1]
+    y = m.predict(u)
+    assert np.array_equal(y, inner.predict(np.concatenate([h, u]))[h.size:])
+    s = m.stepper()
+    assert np.allclose([s.step(v) for v in u], y, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(y).max()))
+    back = m.predict(m.compensator().command(y))
+    assert np.abs(back - y).max() <= 1e-8 * max(1.0, np.ptp(y))

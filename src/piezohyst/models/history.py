@@ -39,7 +39,7 @@ def history_input(waypoints: Any, leg_samples: int, hold_samples: int = 0) -> Fl
     pts = np.asarray(waypoints, dtype=np.float64)
     k = np.arange(1, leg_samples + 1) / leg_samples
     shape = 0.5 * (1.0 - np.cos(np.pi * k))
-    legs = [a + (b - a) * shape for a, b in zip(pts[:-1], pts[1:])]
+    legs = [np.append(a + (b - a) * shape[:-1], b) for a, b in zip(pts[:-1], pts[1:])]  # each ends on b exactly
     return np.concatenate([pts[:1], *legs, np.full(hold_samples, pts[-1])])
 
 
