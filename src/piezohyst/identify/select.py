@@ -240,6 +240,8 @@ class _Candidate:
     per_set: list[float] = field(default_factory=list)
     #: the hold-out error before a candidate was ruled out (``score`` is then inf): how close it came
     unmasked: float = math.nan
+    #: the history it was fitted after (fit_model's ``history``; "": the de-energised start)
+    start: str = ""
 
 
 class _SearchCancelled(Exception):
@@ -596,7 +598,7 @@ def fit_model(
                              "rest, or try kind='auto'")
         statics = [s for s in statics if s != "duhem"]
     sc = _Scorer(us, ys, dt, n_fit, vsets, margin, warmup=prefix, stride=stride)
-    start: AfterHistory | None = None  # the history chosen for the stage's initial state (stage 0)
+    start: AfterHistory | None = None  # the history chosen for the stage's initial state (stage 7)
     starts: list[dict[str, Any]] = []
     linear = [k for k in allowed if k in _LINEAR_KINDS]
     best: _Candidate | None = None
@@ -654,8 +656,9 @@ def fit_model(
         # the compensator must exist and stay smooth: a refitted generalized Duhem model whose
         # branches could rise by less than the margin, or a candidate whose inverse chatters, is
         # passed over for the next best (module docstring, "inverses that never chatter")
+        # (the runners-up fitted from the same start as the winner: the refit runs after its history)
         order = sorted((c for c in sc.tried if isinstance(c.structure, Structure) and c is not best
-                        and math.isfinite(c.score)), key=lambda c: c.score)
+                        and math.isfinite(c.score) and c.start == best.start), key=lambda c: c.score)
         # after the runners-up, the best rate-independent candidate: with no lags to invert,
         # its command follows the reference's turns and no others (a monotone inverse)
         static = [c for c in order if not c.structure.taus and not c.structure.input_tau]
@@ -760,19 +763,21 @@ def _initial_state(sc: _Scorer, best: _Candidate, ranges: SearchRanges, delay: A
     scored (``info["initial_state"]``)."""
     table = [{"start": "de-energised", "label": best.label, "holdout_rmse": best.score}]
     chosen: tuple[_Candidate, AfterHistory | None] = (best, None)
+    row = 0
     for h in _histories(sc.u, sc.n_fit, sc.dt, sc.stride):
         s = _Scorer(sc.u, sc.y, sc.dt, sc.n_fit, sc.validation, sc.margin, warmup=h.history(), stride=sc.stride)
         s.history = True
         c = _one_rate_delay(s, _polish(s, s.linear(best.structure), ranges, delay, linear, n, kind_name), ranges,
                             searched)
         for t in s.tried:
-            t.label, t.kind = f"{t.label}, {_history_label(h)}", AfterHistory.kind
+            t.start = _history_label(h)
+            t.label, t.kind = f"{t.label}, {t.start}", AfterHistory.kind
             sc.tried.append(t)
         table.append({"start": _history_label(h), "label": c.label, "holdout_rmse": c.score})
         if c.score < (1.0 - MIN_GAIN) * chosen[0].score or (force and (chosen[1] is None or c.score < chosen[0].score)):
-            chosen = (c, h)
-    for row in table:
-        row["chosen"] = row["holdout_rmse"] == chosen[0].score
+            chosen, row = (c, h), len(table) - 1
+    for i, entry in enumerate(table):
+        entry["chosen"] = i == row
     return chosen[0], chosen[1], table
 
 
