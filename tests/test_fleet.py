@@ -410,3 +410,26 @@ def test_group_sizes_cover_the_records_and_shrink(records, size, workers):
     assert sizes == sorted(sizes, reverse=True)
     if records:
         assert sizes[-1] == 1
+
+
+def test_each_actuators_start_is_fitted_as_identify_fits_it():
+    """``FitOptions(history=...)`` is ``fit_model``'s (``--history`` of ``piezohyst fleet
+    identify``): with ``kind="auto"`` a record of a stage that came up from the bottom of its range
+    gives an after-history model, as ``piezohyst identify`` does, and ``history="none"`` does not;
+    the option is refused where nothing is selected."""
+    from piezohyst.fleet import FitOptions, fit_record
+
+    from .test_select import _came_from
+
+    lo, hi = -60.0, 100.0
+    t = np.arange(6000)
+    amp = np.interp(t, [0, 1500, 6000], [1.0, 1.0, 0.3])
+    u = np.concatenate([np.linspace(0.0, hi, 200), 0.5 * (lo + hi) + 0.5 * (hi - lo) * np.cos(2 * np.pi * t / 750) * amp])
+    ds = ph.Dataset(np.arange(u.size) * 1e-3, u, _came_from(lo, 2)(u))
+    kinds = {h: fit_record(ds, FitOptions(kind="auto", history=h)).model.kind for h in ("auto", "none", None)}
+    assert kinds["auto"] == kinds[None] == "after-history" and kinds["none"] != "after-history"
+    assert FitOptions(kind="auto", history="none").to_dict()["history"] == "none"
+    with pytest.raises(ValueError, match="history"):
+        FitOptions(kind="pi", method="lsq", history="auto")
+    with pytest.raises(ValueError, match="history"):
+        FitOptions(kind="auto", history="maybe")

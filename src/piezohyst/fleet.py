@@ -184,6 +184,9 @@ class FitOptions:
         otherwise).
     u_col, y_col, t_col, fs
         How to read each file (:func:`~piezohyst.load_dataset`).
+    history : {"auto", "none"}, optional
+        With ``select``: where each actuator's state at the record's start came from
+        (:func:`~piezohyst.fit_model`'s ``history``; default ``"auto"`` for ``kind="auto"``).
     """
 
     kind: str = "pi"
@@ -197,6 +200,7 @@ class FitOptions:
     y_col: Any = None
     t_col: Any = None
     fs: float | None = None
+    history: str | None = None
 
     def __post_init__(self) -> None:
         from .models.base import kind_class
@@ -217,6 +221,11 @@ class FitOptions:
         if method == "lsq" and kind != "prandtl-ishlinskii":
             raise ValueError("method 'lsq' is for kind 'pi'; the other kinds choose their structure on held-out "
                              "data (method 'select', their default)")
+        if self.history not in (None, "auto", "none"):
+            raise ValueError(f"history must be 'auto' or 'none', got {self.history!r}")
+        if self.history is not None and method != "select":
+            raise ValueError(f"history is for the structure search (method 'select'); method {method!r} fits "
+                             "from the de-energised state")
         for name, least in (("n", 1), ("seed", 0), ("max_iter", 1)):
             v = getattr(self, name)
             if v is None and name == "n":
@@ -265,7 +274,7 @@ def fit_record(ds: Any, options: FitOptions | None = None) -> Any:
         return fit_pi(ds.u, ds.y, n=o.n or 20, method=o.method, seed=o.seed, delay=o.delay,  # type: ignore[arg-type]
                       max_iter=o.max_iter)
     return fit_model(ds.u, ds.y, ds.dt, o.kind, delay=o.delay, n=o.n, seed=o.seed,  # type: ignore[arg-type]
-                     bouc_wen_options={"max_iter": o.max_iter, "polish": o.polish})
+                     bouc_wen_options={"max_iter": o.max_iter, "polish": o.polish}, history=o.history)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -54,7 +54,7 @@ def cmd_fleet_identify(args: argparse.Namespace) -> int:
     from ..plots import save, use_headless_backend
 
     options = dict(method=args.method, n=args.n, seed=args.seed, max_iter=args.iterations,
-                   polish=not args.no_polish, delay=args.delay, **data_options(args))
+                   polish=not args.no_polish, delay=args.delay, history=args.history, **data_options(args))
     t0 = time.perf_counter()
     try:
         df = fleet.identify_many(args.paths, kind=args.model, client=args.scheduler, out=args.out,
@@ -163,6 +163,9 @@ def register(sub: Any, add: Any) -> None:
     q.add_argument("--delay", type=_delay, default=None,
                    help="samples by which the output lags the input, or 'auto' (default: auto with --method select, "
                    "0 with lsq/pso)")
+    q.add_argument("--history", choices=("auto", "none"), default=None,
+                   help="--method select: each actuator's state at the record's start, as in identify (default: "
+                   "auto with --model auto, none for a kind by name)")
     q.add_argument("--out", required=True, metavar="DIR", help="output folder (models/, summary.csv, histograms)")
     where = q.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="ADDRESS", default=None,
