@@ -179,17 +179,17 @@ class AfterHistory:
 
 
 class HistoryStepper:
-    """The inner stepper, stepped through the history at each reset."""
+    """The inner stepper, started (and reset) where stepping it through the history left it."""
 
     def __init__(self, inner: Any, history: FloatArray):
+        inner.reset()
+        for v in history:
+            inner.step(float(v))
+        self._after = copy.deepcopy(inner)  # the state after the history: a reset restores a copy
         self._inner = inner
-        self._history = history
-        self.reset()
 
     def reset(self) -> None:
-        self._inner.reset()
-        for v in self._history:
-            self._inner.step(float(v))
+        self._inner = copy.deepcopy(self._after)
 
     def step(self, u_k: float) -> float:
         return float(self._inner.step(u_k))
