@@ -127,8 +127,9 @@ ablation and in ``tests/test_commission.py``):
    Maxwell-slip stage behind a 180 Hz resonance, 12 cycles at 3 Hz: its band widened past the
    resonance three cycles before the end, and the last three cycles read 0.15 / 0.71 / 0.66 %
    against 0.15 / 0.14 / 0.13 % then; a stage with two structural modes at 5 Hz, with a widening
-   tried four cycles before the end: 4.34 / 4.16 / 0.66 % against 0.70 / 0.66 / 0.66 %); nor where the tuning's experiments saw an oscillation grow (a low, lightly damped
-   resonance the model lacks, :attr:`CommissionedController.resonance_seen`): there the widened
+   tried four cycles before the end: 4.34 / 4.16 / 0.66 % against 0.70 / 0.66 / 0.66 %); nor
+   where the tuning's experiments saw an oscillation grow (a low, lightly damped resonance the
+   model lacks, :attr:`CommissionedController.resonance_seen`): there the widened
    band reached the resonance in mid-run and rang it, two cycles at 5.4-5.6 % e_max in a 5 Hz run
    of that stage (0.47 % before and after) and 5.3 % on a census stage with the same resonance and
    logarithmic creep, before the revert. And wherever the identification run shows a lightly

@@ -517,7 +517,7 @@ def fit_model(
     if kind != "auto" and kind_class(kind) is AfterHistory:
         if warmup:
             raise ValueError("kind='after-history' fits the stage's start: not with a warmup, which sets the state")
-        kind, kinds, history = "auto", [k for k in (kinds or _LINEAR_KINDS) if kind_class(k) is not AfterHistory], "force"
+        kind, kinds, history = "auto", list(kinds or _LINEAR_KINDS), "force"
     elif history is None:
         history = "auto" if kind == "auto" else "none"
     if kinds is not None:  # "after-history" among the kinds: the start is chosen anyway (history)
