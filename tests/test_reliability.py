@@ -32,6 +32,8 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
     """(name, zero-argument call, words of which one must be in the message)."""
     from piezohyst import paper_values as pv
     from piezohyst.control.tracking import tracking_metrics
+    from piezohyst.export.c import export_c
+    from piezohyst.export.tables import resample_reference
     from piezohyst.modelio import model_from_dict
     from piezohyst.signals import estimate_period, time_vector
 
@@ -153,6 +155,47 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("RigSettings u range", lambda: ph.RigSettings(u_min=100.0, u_max=0.0), ("u_max", "u_min")),
         ("RigSettings adc_bits", lambda: ph.RigSettings(adc_bits=0), ("adc_bits",)),
         ("loop_figures lengths", lambda: ph.loop_figures([0.0, 1.0, 0.0], [0.0, 1.0]), ("u", "y")),
+        # a second fuzzing round: max_delay past the record ran a kernel off its end (a segmentation
+        # fault); a delay past the part fitted on, an IndexError from numpy; the rest passed silently
+        ("fit_model max_delay past the record", lambda: ph.fit_model(u, y, 1e-3, kind="pi", max_delay=10_000),
+         ("max_delay",)),
+        ("fit_model delay past the fitted part", lambda: ph.fit_model(u, y, 1e-3, kind="pi", delay=1_900),
+         ("delay",)),
+        ("fit_model delay negative", lambda: ph.fit_model(u, y, 1e-3, kind="pi", delay=-1), ("delay",)),
+        ("fit_model delay word", lambda: ph.fit_model(u, y, 1e-3, kind="pi", delay="x"), ("delay",)),
+        ("fit_model delay fraction", lambda: ph.fit_model(u, y, 1e-3, kind="pi", delay=1.5), ("delay",)),
+        ("fit_model max_delay negative", lambda: ph.fit_model(u, y, 1e-3, kind="pi", max_delay=-1), ("max_delay",)),
+        ("fit_model n 0", lambda: ph.fit_model(u, y, 1e-3, kind="pi", n=0), ("n must",)),
+        ("fit_model warmup fraction", lambda: ph.fit_model(u, y, 1e-3, kind="pi", warmup=1.5), ("warmup",)),
+        ("fit_model margin nan", lambda: ph.fit_model(u, y, 1e-3, kind="pi", margin=nan), ("margin",)),
+        ("fit_model taus nan", lambda: ph.fit_model(u, y, 1e-3, kind="rate-dependent", taus=[nan]), ("taus",)),
+        ("fit_model input_taus negative", lambda: ph.fit_model(u, y, 1e-3, kind="rate-dependent", input_taus=[-1.0]),
+         ("input_taus",)),
+        ("fit_pi margin nan", lambda: ph.fit_pi(u, y, margin=nan), ("margin",)),
+        ("fit_pi weight_bounds reversed", lambda: ph.fit_pi(u, y, method="pso", weight_bounds=(1.0, 0.0)),
+         ("weight_bounds",)),
+        ("fit_pi weight_bounds nan", lambda: ph.fit_pi(u, y, method="pso", weight_bounds=(nan, 1.0)),
+         ("weight_bounds",)),
+        ("fit_pi y beyond float", lambda: ph.fit_pi(u, y * 1e200), ("output per volt",)),
+        ("fit_pi u below float", lambda: ph.fit_pi(u * 1e-300, y), ("output per volt",)),
+        ("commission learning_gain negative", lambda: ph.commission(rig, learning_gain=-1.0), ("learning_gain",)),
+        ("commission learning_gain 2", lambda: ph.commission(rig, learning_gain=2.0), ("learning_gain",)),
+        ("commission max_plays 0", lambda: ph.commission(rig, max_plays=0), ("max_plays",)),
+        ("commission n 0", lambda: ph.commission(rig, n=0), ("n must",)),
+        ("simulate complex", lambda: pi.simulate(u + 1j), ("u",)),
+        ("BoucWen unbounded compensator", lambda: ph.BoucWen(**{**pv.BOUC_WEN, "gamma": -1.0}).compensator(1e-3),
+         ("beta", "gamma")),
+        ("model file unbounded Bouc-Wen", lambda: model_from_dict(
+            {**model_to_dict(pv.bouc_wen_model()), "parameters": {**pv.bouc_wen_model().to_dict(), "gamma": -1.0}}),
+         ("beta", "gamma")),
+        ("model file numbers as text", lambda: model_from_dict(
+            doc(parameters={**good["parameters"], "weights": [str(w) for w in good["parameters"]["weights"]]})),
+         ("weights",)),
+        ("model file misspelt parameter", lambda: model_from_dict(doc(parameters={**good["parameters"], "ofset": 1.0})),
+         ("ofset",)),
+        ("export_c kp negative", lambda: export_c(pi, tmp / "c_neg", kp=-1.0), ("kp",)),
+        ("resample_reference beyond memory", lambda: resample_reference(np.array([0.0, 1e6]), np.array([0.0, 1.0]),
+                                                                         1e9), ("Hz",)),
     ]
 
 

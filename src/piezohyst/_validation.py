@@ -20,6 +20,8 @@ def as_signal(name: str, value: Any, *, min_length: int = 1) -> FloatArray:
     """Return ``value`` as a 1-D, finite float64 array or raise naming ``name``."""
     if isinstance(value, (str, bytes)):
         raise TypeError(f"{name} must be a 1-D array of numbers, got {type(value).__name__}")
+    if np.iscomplexobj(value):  # (a cast to float would drop the imaginary part with only a warning)
+        raise TypeError(f"{name} must be real numbers, got complex values")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -49,6 +51,22 @@ def as_scalar(name: str, value: Any, *, positive: bool = False, nonnegative: boo
         raise ValueError(f"{name} must be > 0, got {v}")
     if nonnegative and v < 0:
         raise ValueError(f"{name} must be >= 0, got {v}")
+    return v
+
+
+def as_count(name: str, value: Any, *, minimum: int = 0, maximum: int | None = None,
+             why: str = "") -> int:
+    """Return ``value`` as a whole number in ``minimum..maximum`` or raise naming ``name``
+    (``why`` says what the upper limit is, e.g. "leaves too few samples to fit on")."""
+    if isinstance(value, (float, np.floating)) and math.isfinite(value) and float(value).is_integer():
+        value = int(value)
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be a whole number, got {value!r}")
+    v = int(value)
+    if v < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {v}")
+    if maximum is not None and v > maximum:
+        raise ValueError(f"{name} of {v} {why or f'is more than the largest allowed, {maximum}'}")
     return v
 
 

@@ -168,7 +168,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ._validation import FloatArray, as_signal
+from ._validation import FloatArray, as_count, as_scalar, as_signal
 from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead_in_after, lead_in_from_rest
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
@@ -1582,6 +1582,14 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     """
     call = {k: v for k, v in locals().items() if k != "plant"}  # to commission again in a narrower range
     t0 = time.perf_counter()
+    # learning converges for 0 < gain < 2 where the model's inverse makes G ~ 1 (module
+    # docstring, step 5); a gain outside that grows the error cycle by cycle
+    learning_gain = as_scalar("learning_gain", learning_gain, positive=True)
+    if not learning_gain < 2.0:
+        raise ValueError(f"learning_gain must be below 2 (learning diverges above), got {learning_gain:g}")
+    if n is not None:
+        n = as_count("n", n, minimum=1)
+    max_plays = as_count("max_plays", max_plays, minimum=1)
     dt = check_plant(plant)
     mode = plant_mode(plant)
     rng_u = plant_u_range(plant, u_range) or (0.0, 100.0)

@@ -210,12 +210,105 @@ def model_from_dict(doc: Any, *, source: str = "model") -> Any:
         kind_class(kind)
     except ValueError:
         raise ModelFileError(f"{source}: unknown model kind {kind!r}; known kinds are {kinds()}") from None
+    text = _text_in_arrays(params, "parameters")
+    if text:
+        raise ModelFileError(f"{source}: {text} holds text ({_short(text, params)}) where a number belongs; a model "
+                             "file's numbers are JSON numbers, not strings")
+    read = _ReadKeys(params)
     try:
-        return registry_from_dict(kind, params)
+        model = registry_from_dict(kind, read)
     except KeyError as exc:
         raise ModelFileError(f"{source}: parameter {exc} is missing") from None
     except (ValueError, TypeError) as exc:
         raise ModelFileError(f"{source}: {exc}") from None
+    unread = read.unread("parameters")
+    if unread:
+        # a typo ("ofset") was ignored and the model built without it (found by fuzzing)
+        raise ModelFileError(f"{source}: unknown parameter{'s' if len(unread) > 1 else ''} {', '.join(unread)} for a "
+                             f"{kind} model (misspelt? a {kind} model file holds {', '.join(sorted(read.read))})")
+    return model
+
+
+class _ReadKeys(dict):  # type: ignore[type-arg]
+    """A model file's ``parameters`` that record which names the kind's ``from_dict`` read (by
+    name, by a membership test, or all of them by iterating), nested objects alike: what it did
+    not read it would have ignored."""
+
+    def __init__(self, d: dict[str, Any]) -> None:
+        super().__init__({k: _ReadKeys(v) if isinstance(v, dict) else v for k, v in d.items()})
+        self.read: set[Any] = set()
+
+    def __getitem__(self, key: Any) -> Any:
+        self.read.add(key)
+        return super().__getitem__(key)
+
+    def get(self, key: Any, default: Any = None) -> Any:
+        self.read.add(key)
+        return super().get(key, default)
+
+    def __contains__(self, key: Any) -> bool:
+        self.read.add(key)
+        return super().__contains__(key)
+
+    def pop(self, key: Any, *default: Any) -> Any:
+        self.read.add(key)
+        return super().pop(key, *default)
+
+    def _all(self) -> None:
+        self.read.update(super().keys())
+
+    def __iter__(self) -> Any:
+        self._all()
+        return super().__iter__()
+
+    def keys(self) -> Any:
+        self._all()
+        return super().keys()
+
+    def items(self) -> Any:
+        self._all()
+        return super().items()
+
+    def values(self) -> Any:
+        self._all()
+        return super().values()
+
+    def unread(self, path: str) -> list[str]:
+        out = []
+        for k in dict.keys(self):
+            v = dict.__getitem__(self, k)
+            if k not in self.read:
+                out.append(f"{path}.{k}")
+            elif isinstance(v, _ReadKeys):
+                out += v.unread(f"{path}.{k}")
+        return out
+
+
+def _text_in_arrays(obj: Any, path: str) -> str | None:
+    """The path of the first list that holds a string (``"0.0307"`` for a weight), or None."""
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            found = _text_in_arrays(v, f"{path}.{k}")
+            if found:
+                return found
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            if isinstance(v, str):
+                return f"{path}[{i}]"
+            found = _text_in_arrays(v, f"{path}[{i}]")
+            if found:
+                return found
+    return None
+
+
+def _short(path: str, params: dict[str, Any]) -> str:
+    """The value at ``path`` (as :func:`_text_in_arrays` names it), shortened for a message."""
+    import re
+
+    obj: Any = {"parameters": params}
+    for name, index in re.findall(r"\.?([^.\[\]]+)|\[(\d+)\]", path):
+        obj = obj[int(index)] if index else obj[name]
+    return repr(obj)[:40]
 
 
 def _strict_loads(text: str, source: str) -> Any:

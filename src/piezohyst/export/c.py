@@ -189,6 +189,8 @@ def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, flo
     for nm, g in (("kp", kp), ("ki", ki)):
         if not math.isfinite(float(g)):
             raise ValueError(f"{nm} must be finite, got {g!r}")
+        if float(g) < 0.0:  # compensator_step_fb adds kp e + ki sum(e) dt, e = reference - measured
+            raise ValueError(f"{nm} must be >= 0 (a negative gain is positive feedback), got {g!r}")
     fdt = fb_dt if fb_dt is not None else dt
     if ki != 0.0 and fdt is None:
         raise ValueError("integral feedback needs the sample period: give fb_dt (or dt)")

@@ -101,12 +101,34 @@ def write_table(path: Any, t: FloatArray, x_d: FloatArray, u: FloatArray, *, dt:
     return atomic_write(out, write, force=force)
 
 
-def resample_reference(t: FloatArray, x: FloatArray, fs: float, *, periodic: bool = False) -> tuple[FloatArray, FloatArray]:
+def _check_resampled_size(count: float, seconds: float, fs: float, max_memory: int | None) -> None:
+    """Refuse a resampled reference that would not fit in memory before allocating it: a time
+    column in milliseconds read as seconds, or a rate in kHz given as Hz, asked for billions of
+    samples and was killed by the system without a word (found by fuzzing)."""
+    from ..data._columns import default_limit, human
+
+    limit = default_limit() if max_memory is None else int(max_memory)
+    need = 8.0 * RESAMPLED_ARRAYS * count
+    if not need <= limit:  # (also NaN)
+        raise ValueError(f"the reference lasts {seconds:.6g} s: at {fs:.6g} Hz that is {count:.4g} samples, about "
+                         f"{human(need)} of memory, over the limit of {human(limit)}. Is its time column in seconds "
+                         f"and the rate in Hz (fs= in Python, --fs at the command line)? PIEZOHYST_MAX_MEMORY "
+                         f"raises the limit")
+
+
+#: Arrays of the resampled reference's length that a command keeps at once (time, reference,
+#: command, output): what :func:`resample_reference`'s memory check counts.
+RESAMPLED_ARRAYS = 4
+
+
+def resample_reference(t: FloatArray, x: FloatArray, fs: float, *, periodic: bool = False,
+                       max_memory: int | None = None) -> tuple[FloatArray, FloatArray]:
     """``x(t)`` on a grid of ``fs`` Hz from ``t[0]`` (linear interpolation).
 
     Without ``periodic`` the grid ends at ``t[-1]``; with it the reference is one period of
     ``len(x)`` samples (its duration ``len(x) * dt``) and the grid has ``round(duration * fs)``
-    samples over that period, interpolated across the wrap-around.
+    samples over that period, interpolated across the wrap-around. A grid that would need more than
+    ``max_memory`` bytes (default ``PIEZOHYST_MAX_MEMORY``, else half the RAM) is refused.
     """
     if not (math.isfinite(fs) and fs > 0):
         raise ValueError(f"the table rate must be a positive number of Hz, got {fs}")
@@ -115,12 +137,16 @@ def resample_reference(t: FloatArray, x: FloatArray, fs: float, *, periodic: boo
     dt_old = float(np.median(np.diff(t))) if t.size > 1 else 1.0 / fs
     if periodic:
         period = x.size * dt_old
-        n = int(round(period * fs))
+        count = period * fs
+        _check_resampled_size(count, period, fs, max_memory)
+        n = int(round(count))
         if n < 2:
             raise ValueError(f"one period ({period:.6g} s) is shorter than two samples at {fs:g} Hz")
         tn = t[0] + np.arange(n) / fs
         return tn, np.interp(tn - t[0], t - t[0], x, period=period)
-    n = int(math.floor((t[-1] - t[0]) * fs * (1 + 1e-12))) + 1
+    count = (t[-1] - t[0]) * fs * (1 + 1e-12)
+    _check_resampled_size(count, float(t[-1] - t[0]), fs, max_memory)
+    n = int(math.floor(count)) + 1
     if n < 2:
         raise ValueError(f"the reference ({t[-1] - t[0]:.6g} s) is shorter than two samples at {fs:g} Hz")
     tn = t[0] + np.arange(n) / fs

@@ -18,6 +18,7 @@ data (6x); with 100 x 3000 (what ``reproduce`` uses; 0.15 s, the whole swarm loo
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any, Callable
 
@@ -251,7 +252,15 @@ def fit_pi(
     nr = r.size
     if us.size < nr + 2:
         raise ValueError(f"{us.size} samples are too few to fit {nr} weights")
+    if not float(np.ptp(ys)) > 0.0:
+        raise ValueError(f"y is constant ({float(ys[0]):.6g}): the output never moves, so no model of how it follows "
+                         "the input can be identified")
     slope = float(np.ptp(ys) / np.ptp(us))
+    if not (1e-100 < slope < 1e100 and math.isfinite(float(np.dot(ys, ys)))):
+        # (y scaled by 1e200 gave rmse = inf; u scaled by 1e-300 a weight of 5e295)
+        raise ValueError(f"the output per volt of input ({float(np.ptp(ys)):.3g} over {float(np.ptp(us)):.3g} V) is "
+                         "outside what floating point can fit: give u in volts and y in a unit of length near the "
+                         "motion's scale (um, nm)")
     if np.corrcoef(us, ys)[0, 1] < 0:
         raise ValueError(
             "the output falls as the input rises (negative correlation): a P-I model with an "
@@ -259,6 +268,16 @@ def fit_pi(
         )
     if margin is None:
         margin = 1e-3 * slope
+    else:
+        margin = as_scalar("margin", margin, nonnegative=True)
+    if weight_bounds is not None:
+        if not (isinstance(weight_bounds, (tuple, list)) and len(weight_bounds) == 2):
+            raise TypeError(f"weight_bounds must be a (low, high) pair, got {weight_bounds!r}")
+        wlo = as_scalar("weight_bounds[0]", weight_bounds[0])
+        whi = as_scalar("weight_bounds[1]", weight_bounds[1])
+        if not wlo < whi:
+            raise ValueError(f"weight_bounds must have low < high, got {weight_bounds!r}")
+        weight_bounds = (wlo, whi)
     info: dict[str, Any] = {"n_operators": nr, "margin": margin}
     if auto:
         # the delay that predicts held-out data best (the last 30 %), from one pass of streamed

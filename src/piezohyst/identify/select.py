@@ -82,7 +82,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .._blas import with_single_threaded_blas
-from .._validation import FloatArray, as_scalar
+from .._validation import FloatArray, as_count, as_scalar
 from ..models.base import kind_class
 from ..models.duhem import MAX_RANGE_SPANS, reaches_beyond_knots
 from ..models.history import AfterHistory
@@ -520,6 +520,8 @@ def fit_model(
         kind, kinds, history = "auto", list(kinds or _LINEAR_KINDS), "force"
     elif history is None:
         history = "auto" if kind == "auto" else "none"
+    if isinstance(kinds, str):  # one kind given as a string, not a list of them
+        kinds = [kinds]
     if kinds is not None:  # "after-history" among the kinds: the start is chosen anyway (history)
         kinds = [k for k in kinds if kind_class(k) is not AfterHistory]
     if glitches not in ("bridge", "keep"):
@@ -563,9 +565,29 @@ def fit_model(
         n_fit = n_total if vsets else int(round((1.0 - holdout) * n_total))
     if n_fit < 50 or (not vsets and n_total - n_fit < 20):
         raise ValueError(f"{n_total} samples are too few to fit on one part and choose on another")
-    w = int(warmup)
-    if w < 0 or w > n_fit - 50:
-        raise ValueError(f"warmup of {warmup} samples leaves too little to fit on ({n_fit} samples to fit on)")
+    w = as_count("warmup", warmup, maximum=n_fit - 50,
+                 why=f"samples leaves too little to fit on ({n_fit} samples to fit on)")
+    if n is not None:
+        n = as_count("n", n, minimum=1)
+    if margin is not None:
+        margin = as_scalar("margin", margin, nonnegative=True)
+    # a delay as long as the part fitted on leaves nothing to fit (and ran the kernels past the
+    # record's end: found by fuzzing, a segmentation fault for max_delay=10000 on 1500 samples)
+    room = n_fit - w - 50
+    if delay != "auto":
+        if isinstance(delay, str):
+            raise ValueError(f"delay must be a whole number of samples or 'auto', got {delay!r}")
+        delay = as_count("delay", delay, maximum=room,
+                         why=f"samples (delay= in Python, --delay at the command line) leaves too few samples to "
+                             f"fit on ({n_fit - w} samples to fit on)")
+    if max_delay is not None:
+        max_delay = as_count("max_delay", max_delay, maximum=room,
+                             why=f"samples leaves too few samples to fit on ({n_fit - w} samples to fit on)")
+    for name, lags, least in (("taus", taus, "> 0"), ("input_taus", input_taus, ">= 0: 0 is no input lag")):
+        if lags is not None and not all(isinstance(t, (int, float, np.integer, np.floating))
+                                        and not isinstance(t, (bool, np.bool_)) and math.isfinite(t)
+                                        and (t > 0 if name == "taus" else t >= 0) for t in lags):
+            raise ValueError(f"{name} must be time constants in seconds (finite, {least}), got {list(lags)!r}")
     stride = max(1, (n_fit - w) // SEARCH_ROWS)
     w = -(-w // stride) * stride
     prefix = us[:w]

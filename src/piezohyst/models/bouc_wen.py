@@ -694,10 +694,21 @@ class BoucWen:
 
     def compensator(self, dt: float | None = None, *, u_range: Any = None,
                     max_slew: float | None = None) -> Any:
-        """The hysteresis-estimate feedforward of eq. (10) (rate independent: ``dt`` unused)."""
+        """The hysteresis-estimate feedforward of eq. (10) (rate independent: ``dt`` unused).
+        Refused where the loop is unbounded (``beta + gamma <= 0``: :meth:`check_bounded`)."""
         from .bouc_wen_inverse import BoucWenFeedforward
 
+        self.check_bounded()
         return BoucWenFeedforward(self, u_range=u_range, max_slew=max_slew)
+
+    def check_bounded(self) -> None:
+        """Raise ValueError unless ``beta + gamma > 0``: on a long monotone input eq. (8) takes h
+        towards ``alpha d1 / (beta + gamma)``; with ``beta + gamma <= 0`` it grows without bound,
+        and the feedforward's commands became NaN (found by fuzzing: a model file with gamma = -1,
+        and a command table of NaN written without a word)."""
+        if not self.beta + self.gamma > 0.0:
+            raise ValueError(f"the Bouc-Wen loop is unbounded: beta + gamma must be > 0 (eq. 8: |h| tends to "
+                             f"alpha d1 / (beta + gamma)), got beta={self.beta:g}, gamma={self.gamma:g} 1/V")
 
     def to_dict(self) -> dict[str, float]:
         """The seven parameters of eqs. (7)-(8), the offset and h0, in SI units (plain data)."""
@@ -713,7 +724,9 @@ class BoucWen:
         unknown = set(params) - set(names)
         if unknown:
             raise ValueError(f"unknown Bouc-Wen parameter(s) {sorted(unknown)}")
-        return cls(**{n: params[n] for n in names if n in params})
+        model = cls(**{n: params[n] for n in names if n in params})
+        model.check_bounded()  # a file is data: refused as it loads, not when its commands are NaN
+        return model
 
     def _repr_html_(self) -> str:
         """An HTML summary for Jupyter: kind, units, invertibility, parameters."""
