@@ -150,6 +150,16 @@ def make_inputs(root: Path) -> dict[str, str]:
     text("rs_dt.json", '{"dt": 1e-12}')
     # reference for compensate
     text("ref.csv", "t,x\n" + "\n".join(f"{a:.6g},{1 + np.sin(a):.6g}" for a in t[:200]) + "\n")
+    # (a second fuzzing round: a reference below the stroke, a time column in microseconds read as s)
+    text("ref_far.csv", "t,x\n" + "\n".join(f"{a:.6g},{-5 + 0.1 * np.sin(a):.6g}" for a in t[:200]) + "\n")
+    text("ref_us.csv", "t,x\n" + "\n".join(f"{1e6 * a:.8g},{1 + np.sin(a):.6g}" for a in t[:200]) + "\n")
+    text("nonuniform.csv", "t,u,y\n" + "\n".join(f"{a + (0.0004 if i == 300 else 0.0):.6g},{b:.9g},{c:.9g}"
+                                                    for i, (a, b, c) in enumerate(zip(t, u, y))) + "\n")
+    bw_doc = json.loads((root / "bw.json").read_text())
+    bw_doc["parameters"]["gamma"] = -1.0  # beta + gamma < 0: h grows without bound
+    text("bw_unbounded.json", json.dumps(bw_doc))
+    model("weights_numtext", {"p.weights": ["0.01"] * 8})
+    model("param_typo", {"p.ofset": 0.5})
     # outputs that exist already, and things that are not what they seem
     text("exists.json", "{}\n")
     text("a_file.txt", "I am a file, not a folder\n")
@@ -340,6 +350,25 @@ CASES: list[Case] = [
     C("compensate --u-min inf", "compensate --model {pi} --reference {ref} -o {root}/c5.csv --u-min inf", "--u-min"),
     C("compensate --u-min above --u-max",
       "compensate --model {pi} --reference {ref} -o {root}/c6.csv --u-min 100 --u-max 0", "--u-min"),
+    # a second fuzzing round (ten of these were tracebacks, kills or silent successes before)
+    C("identify --delay past the part fitted on", "identify {data} --delay 900", "--delay"),
+    C("identify non-uniform time column", "identify {nonuniform} --model pi --method lsq", "--resample"),
+    C("compensate unbounded Bouc-Wen file", "compensate --model {bw_unbounded} --reference {ref} -o {root}/c7.csv",
+      "{bw_unbounded}"),
+    C("compensate numbers as text", "compensate --model {weights_numtext} --reference {ref} -o {root}/c8.csv",
+      "{weights_numtext}"),
+    C("compensate misspelt parameter", "compensate --model {param_typo} --reference {ref} -o {root}/c9.csv", "ofset"),
+    C("compensate --fs absurd", "compensate --model {pi} --reference {ref} -o {root}/c10.csv --fs 1e300", "--fs"),
+    C("track --reference in microseconds", "track --model {pi} --reference {ref_us} --cycles 2", "--fs"),
+    C("track --reference beyond the stroke", "track --model {pi} --reference {ref_far} --cycles 2", "{ref_far}"),
+    C("export --kp negative", "export {pi} --to c --out {root}/x1 --kp -1", "--kp"),
+    C("export --ki negative", "export {pi} --to c --out {root}/x2 --ki -5 --fs 1000", "--ki"),
+    C("export --fb-delay huge", "export {pi} --to c --out {root}/x3 --fb-delay 1000000000", "--fb-delay"),
+    C("benchmark --bounds-scale empty entry", "benchmark bouc-wen --bounds-scale 1,,2", "--bounds-scale"),
+    C("benchmark --bounds-scale 1e308", "benchmark bouc-wen --bounds-scale 1e308", "--bounds-scale"),
+    C("fleet --workers thousands", "fleet identify {data} --model pi --out {root}/fl1 --workers 100000", "--workers"),
+    C("fleet --iterations 0", "fleet identify {data} --model pi --out {root}/fl2 --iterations 0", "--iterations"),
+    C("fleet --n 0", "fleet identify {data} --model pi --out {root}/fl3 --n 0", "--n"),
 ]
 
 #: Python keyword spelling that must not reach a command-line user

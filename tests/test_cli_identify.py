@@ -162,3 +162,19 @@ def test_identify_bridges_isolated_glitches_and_says_so(tmp_path, capsys):
     assert any("4 isolated glitches" in w and "sample 700" in w for w in got[False]["warnings"])
     assert not any("glitch" in w for w in got[True]["warnings"])
     assert got[False]["fit"]["rmse"] < 0.5 * got[True]["fit"]["rmse"]
+
+
+def test_resample_reads_a_record_with_a_dropped_sample(tmp_path, capsys):
+    # the refusal of a non-uniform time column pointed to --resample, which did not exist
+    dt = 1e-3
+    u = ph.sinusoid(2.0, 3, 0.0, 100.0, dt)
+    y = ph.paper_values.pi_model().simulate(u) * 0.05
+    keep = np.arange(u.size) != 700  # one sample lost: a step of 2 ms in the time column
+    t = np.arange(u.size)[keep] * dt
+    path = tmp_path / "gap.csv"
+    path.write_text("t,u,y\n" + "\n".join(f"{a:.6g},{b:.9g},{c:.9g}" for a, b, c in zip(t, u[keep], y[keep])) + "\n")
+    assert main(["identify", str(path), "--model", "pi", "--method", "lsq"]) == 2
+    assert "--resample" in capsys.readouterr().err
+    assert main(["identify", str(path), "--model", "pi", "--method", "lsq", "--resample", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["fit"]["rmse"] < 0.01 * float(np.ptp(y))

@@ -380,3 +380,12 @@ def test_bridge_says_how_to_install_python_control(monkeypatch):
     monkeypatch.setitem(sys.modules, "control", None)
     with pytest.raises(ImportError, match=r"pip install 'piezohyst\[control\]'"):
         pycontrol.pid_transfer_function(ph.PID(0.0, 1.0, 0.0, 1e-3))
+
+
+def test_export_reads_negative_numbers_in_exponent_notation(tmp_path, capsys):
+    # argparse before Python 3.13 took "-1e3" for an unknown option (found by fuzzing)
+    path = tmp_path / "m.json"
+    ph.save_model(MODELS["prandtl-ishlinskii"], path)
+    assert main(["export", str(path), "--to", "c", "--out", str(tmp_path / "o"), "--u-min", "-1e2",
+                 "--u-max", "1.2e2", "--json"]) == 0
+    assert '"amplifier_range_V": [\n    -100.0,\n    120.0\n  ]' in capsys.readouterr().out

@@ -433,3 +433,20 @@ def test_each_actuators_start_is_fitted_as_identify_fits_it():
         FitOptions(kind="pi", method="lsq", history="auto")
     with pytest.raises(ValueError, match="history"):
         FitOptions(kind="auto", history="maybe")
+
+
+def test_cli_exits_2_when_no_record_is_identified(tmp_path, capsys):
+    # found by fuzzing: every record naming a missing column printed "ok": 0 and exited 0, which a
+    # script or a CI job takes for success; one record failing among good ones stays exit 0 (a row)
+    write_simulated_batch(tmp_path / "b", 2, fs=200.0)
+    code = main(["fleet", "identify", str(tmp_path / "b"), "--model", "pi", "--out", str(tmp_path / "o"),
+                 "--u-col", "volts", "--workers", "1", "--quiet", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert json.loads(out)["ok"] == 0 and "none of the 2 records was identified" in err and "volts" in err
+    (tmp_path / "b2").mkdir()
+    good = write_simulated_batch(tmp_path / "b2", 1, fs=200.0)[0]
+    (good.parent / "broken.csv").write_text("t,u,y\n0,1\n")
+    code = main(["fleet", "identify", str(tmp_path / "b2"), "--model", "pi", "--out", str(tmp_path / "o2"),
+                 "--workers", "1", "--quiet", "--json"])
+    assert code == 0 and json.loads(capsys.readouterr().out)["failed"] == 1

@@ -182,8 +182,9 @@ class FitOptions:
     delay : int or "auto", optional
         Samples by which the output lags the input (default ``"auto"`` with ``select``, 0
         otherwise).
-    u_col, y_col, t_col, fs
-        How to read each file (:func:`~piezohyst.load_dataset`).
+    u_col, y_col, t_col, fs, resample
+        How to read each file (:func:`~piezohyst.load_dataset`; ``resample``: a time column that
+        is not uniformly sampled is interpolated onto a uniform grid).
     history : {"auto", "none"}, optional
         With ``select``: where each actuator's state at the record's start came from
         (:func:`~piezohyst.fit_model`'s ``history``; default ``"auto"`` for ``kind="auto"``).
@@ -201,6 +202,7 @@ class FitOptions:
     t_col: Any = None
     fs: float | None = None
     history: str | None = None
+    resample: bool = False
 
     def __post_init__(self) -> None:
         from .models.base import kind_class
@@ -251,7 +253,8 @@ class FitOptions:
 
     def data_options(self) -> dict[str, Any]:
         """The keyword arguments of :func:`~piezohyst.load_dataset`."""
-        return {"u_col": self.u_col, "y_col": self.y_col, "t_col": self.t_col, "fs": self.fs}
+        return {"u_col": self.u_col, "y_col": self.y_col, "t_col": self.t_col, "fs": self.fs,
+                "resample": bool(self.resample)}
 
     def to_dict(self) -> dict[str, Any]:
         """The options as plain data (the fleet's result records them)."""

@@ -33,7 +33,13 @@ class Terminated(KeyboardInterrupt):
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse, with its errors on one line (no usage block): ``piezohyst CMD: error: ...``."""
+    """argparse, with its errors on one line (no usage block): ``piezohyst CMD: error: ...``; a
+    negative number in exponent notation is a value, not an option (``--u-min -1e3``: argparse
+    before Python 3.13 took ``-1e3`` for an unknown option, found by fuzzing)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
     def error(self, message: str) -> Any:  # type: ignore[override]
         msg = " ".join(message.split())
@@ -278,6 +284,9 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--y-col", type=column, default=None, help="output column (0-based index or header name)")
     p.add_argument("--t-col", type=column, default=None, help="time column (else --fs)")
     p.add_argument("--fs", type=positive_float, default=None, help="sample rate in Hz when the file has no time column")
+    p.add_argument("--resample", action="store_true",
+                   help="a time column that is not uniformly sampled (dropped or jittered samples) is interpolated "
+                        "onto a uniform grid (at --fs, else the median step) instead of refused")
 
 
 def data_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -286,7 +295,8 @@ def data_options(args: argparse.Namespace) -> dict[str, Any]:
     for flag, v in (("--u-col", args.u_col), ("--y-col", args.y_col), ("--t-col", args.t_col)):
         if isinstance(v, int) and v < 0:
             raise UsageError(f"{flag} {v}: columns count from 0")
-    return {"u_col": args.u_col, "y_col": args.y_col, "t_col": args.t_col, "fs": args.fs}
+    return {"u_col": args.u_col, "y_col": args.y_col, "t_col": args.t_col, "fs": args.fs,
+            "resample": bool(getattr(args, "resample", False))}
 
 
 def load_cli_dataset(path: str, args: argparse.Namespace) -> Any:

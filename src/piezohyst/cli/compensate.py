@@ -157,6 +157,11 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         periodic_info["wrap_step_from_rest_V"] = float(abs(plain[0] - plain[-1]))
     else:
         u = ff.command(ref)
+    bad = ~np.isfinite(u)
+    if bad.any():  # (NaN passes the range check below: found by fuzzing, a table of NaN written)
+        i = int(np.argmax(bad))
+        raise UsageError(f"the {model.kind} model's compensator gave {int(bad.sum())} non-finite commands (first at "
+                         f"t = {t[i]:.6g} s, for {ref[i]:.6g} um): check the model file {args.model}'s parameters")
     if args.clip:
         n_out = int(periodic_info["limited_samples"]) if periodic_info is not None else int(ff.limited)
     else:

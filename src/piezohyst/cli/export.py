@@ -15,6 +15,9 @@ from pathlib import Path
 
 from ._common import UsageError, amplifier_range, check_u_options, console, print_json
 
+#: The longest feedback delay the C export compiles in (its ring buffer), samples.
+MAX_FB_DELAY = 10000
+
 
 def cmd_export(args: argparse.Namespace) -> int:
     import hashlib
@@ -30,8 +33,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     for name in ("kp", "ki"):
         if not math.isfinite(getattr(args, name)):
             raise UsageError(f"--{name} must be finite, got {getattr(args, name)}")
-    if args.fb_delay < 0:
-        raise UsageError(f"--fb-delay must be >= 0 samples, got {args.fb_delay}")
+        if getattr(args, name) < 0:  # (found by fuzzing: --kp -1 --ki -5 wrote positive feedback)
+            raise UsageError(f"--{name} must be >= 0 (a negative gain is positive feedback), got {getattr(args, name)}")
+    if not 0 <= args.fb_delay <= MAX_FB_DELAY:
+        raise UsageError(f"--fb-delay must be 0..{MAX_FB_DELAY} samples (the compiled-in delay line), got {args.fb_delay}")
     model_path = Path(args.model)
     doc = load_model_document(model_path)
     model = model_from_dict(doc, source=str(model_path))
@@ -86,12 +91,15 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
                         "range the model was identified on, as its file says, where that is lower)")
     p.add_argument("--u-max", type=float, default=None,
                    help="amplifier's highest voltage (default 100, or the high end of that range where higher)")
-    p.add_argument("--max-slew", type=float, default=None, help="largest command change per sample, V (default none)")
+    p.add_argument("--max-slew", type=float, default=None,
+                   help="largest command change per sample, V (default none)")
     p.add_argument("--fs", type=float, default=None,
                    help="sample rate, Hz, where the model has none of its own: the feedback's integral (c) and "
                         "the reference table (matlab); a model identified at a rate runs only at that rate")
-    p.add_argument("--kp", type=float, default=0.0, help="compiled-in proportional gain of compensator_step_fb, V/um")
-    p.add_argument("--ki", type=float, default=0.0, help="compiled-in integral gain of compensator_step_fb, V/(um s)")
+    p.add_argument("--kp", type=float, default=0.0,
+                   help="compiled-in proportional gain of compensator_step_fb, V/um (>= 0)")
+    p.add_argument("--ki", type=float, default=0.0,
+                   help="compiled-in integral gain of compensator_step_fb, V/(um s) (>= 0)")
     p.add_argument("--fb-delay", type=int, default=0, help="COMPENSATOR_FB_DELAY, samples (default 0)")
     p.add_argument("--force", action="store_true", help="overwrite existing files")
     p.add_argument("--json", action="store_true", help="print the summary as JSON only")

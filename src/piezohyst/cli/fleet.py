@@ -12,7 +12,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ._common import UsageError, add_data_options, console, data_options, print_json
+from ._common import UsageError, add_data_options, console, data_options, positive_int, print_json
+from ._common import seed as seed_type
 from .identify import _MODEL_HELP, _delay
 
 
@@ -23,7 +24,23 @@ def _workers(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a number of worker processes, got {text!r}") from None
     if n < 1:
         raise argparse.ArgumentTypeError(f"--workers must be at least 1, got {n}")
+    if n > MAX_WORKERS_PER_CORE * _cores():
+        # a local cluster of hundreds of processes on a few cores starved itself into
+        # CommClosedErrors and hung (found by fuzzing: --workers 200 and 100000 on 2 cores)
+        raise argparse.ArgumentTypeError(
+            f"--workers {n} is more than {MAX_WORKERS_PER_CORE}x this machine's {_cores()} cores: each worker is a "
+            "process of its own; for more, start a cluster (dask-jobqueue, a dask scheduler) and pass --scheduler")
     return n
+
+
+#: A local cluster may have up to this many worker processes per core (``--workers``).
+MAX_WORKERS_PER_CORE = 4
+
+
+def _cores() -> int:
+    import os
+
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
 
 def _mads(text: str) -> float:
@@ -84,8 +101,21 @@ def cmd_fleet_identify(args: argparse.Namespace) -> int:
                     "failed_records": [{"record": r, "file": f, "error": e}
                                        for r, f, e in zip(failed["record"], failed["file"], failed["error"])],
                     "rows": df.to_dict(orient="records")})
-        return 0
+        return _exit_code(df, ok)
     _print_report(df, stats, elapsed, where, summary, hist, out)
+    return _exit_code(df, ok)
+
+
+def _exit_code(df: Any, ok: Any) -> int:
+    """0 where at least one record was identified (a record that failed is a row of the summary,
+    not a failed batch); 2 where every record failed, as for any input the command cannot use, so
+    that a script or a CI job sees it (found by fuzzing: a batch whose every record named a missing
+    column exited 0)."""
+    if len(df) and not bool(ok.any()):
+        first = str(df["error"].iloc[0])
+        console(stderr=True).print(f"piezohyst fleet identify: error: none of the {len(df)} records was identified "
+                                   f"(the first: {first})")
+        return 2
     return 0
 
 
@@ -156,9 +186,9 @@ def register(sub: Any, add: Any) -> None:
     q.add_argument("--method", choices=("select", "lsq", "pso"), default=None,
                    help="as for piezohyst identify: lsq (pi default), pso (bouc-wen default, or pi), select (the "
                    "other kinds and auto)")
-    q.add_argument("--n", type=int, default=None, help="play operators (pi: 20 with lsq/pso) or grid levels")
-    q.add_argument("--seed", type=int, default=0, help="PSO seed, the same for every record (default 0)")
-    q.add_argument("--iterations", type=int, default=200, help="PSO iterations (default 200)")
+    q.add_argument("--n", type=positive_int, default=None, help="play operators (pi: 20 with lsq/pso) or grid levels")
+    q.add_argument("--seed", type=seed_type, default=0, help="PSO seed, the same for every record (default 0)")
+    q.add_argument("--iterations", type=positive_int, default=200, help="PSO iterations (default 200)")
     q.add_argument("--no-polish", action="store_true", help="bouc-wen: PSO only, no local refinement")
     q.add_argument("--delay", type=_delay, default=None,
                    help="samples by which the output lags the input, or 'auto' (default: auto with --method select, "

@@ -25,11 +25,12 @@ def _unstable(exc: Any, args: argparse.Namespace, run: str, what: str) -> UsageE
     return UsageError(f"{where} the loop went unstable with {what}: {reason}; lower the gains, or {keep}")
 
 
-def _check_reachable(rig: Any, args: argparse.Namespace) -> None:
+def _check_reachable(rig: Any, args: argparse.Namespace, low: float | None = None, high: float | None = None) -> None:
     """Refuse a reference the stage cannot reach within its amplifier's range.
 
     The stage is driven open loop over its whole range (two cycles at the lowest --freq); a
     reference more than a tenth of that reach beyond it cannot be followed by any controller.
+    ``low``/``high``: a --reference file's extremes (default: --low and --high).
     """
     import numpy as np
 
@@ -40,8 +41,11 @@ def _check_reachable(rig: Any, args: argparse.Namespace) -> None:
     y = open_loop(rig, sinusoid(min(args.freq), 2, lo, hi, rig.dt)).y
     y_lo, y_hi = float(np.min(y)), float(np.max(y))
     margin = 0.1 * (y_hi - y_lo)
-    if args.low < y_lo - margin or args.high > y_hi + margin:
-        raise UsageError(f"--low {args.low:g} .. --high {args.high:g} um is beyond what the stage reaches with its "
+    a, b = (args.low, args.high) if low is None or high is None else (low, high)
+    if a < y_lo - margin or b > y_hi + margin:
+        what = (f"--low {a:g} .. --high {b:g} um" if low is None
+                else f"the reference {args.reference} ({a:.4g} .. {b:.4g} um)")
+        raise UsageError(f"{what} is beyond what the stage reaches with its "
                          f"{lo:g}..{hi:g} V amplifier ({y_lo:.4g} .. {y_hi:.4g} um, measured open loop); no "
                          f"controller can follow it")
 
@@ -119,6 +123,8 @@ def cmd_track(args: argparse.Namespace) -> int:
         check_sinusoids(args.freq, args.cycles, rig.dt, rate_from=rig_rate_note(args))
         _check_reachable(rig, args)
     refs = _references(args, rig)
+    if args.reference is not None:  # (found by fuzzing: a file 5 um below the stroke ran, 300 % e_max, exit 0)
+        _check_reachable(rig, args, float(min(r.min() for _, r, _ in refs)), float(max(r.max() for _, r, _ in refs)))
     runs = []
     if args.method == "best":
         from ..commissioning import commission
