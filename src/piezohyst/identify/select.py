@@ -533,6 +533,12 @@ def fit_model(
         raise ValueError(f"y is constant ({float(ys[0]):.6g}): the output never moves, so no model of how it "
                          "follows the input can be identified (a sensor that is not connected or not reading, a "
                          "stage that is not driven?)")
+    ratio = float(np.ptp(ys)) / float(np.ptp(us)) if float(np.ptp(us)) > 0 else math.inf
+    if not (1e-100 < ratio < 1e100 and math.isfinite(float(np.dot(ys, ys)))):
+        # (y scaled by 1e200 ended in "array must not contain infs or NaNs", which named nothing)
+        raise ValueError(f"the output per volt of input ({float(np.ptp(ys)):.3g} over {float(np.ptp(us)):.3g} V) is "
+                         "outside what floating point can fit: give u in volts and y in a unit of length near the "
+                         "motion's scale (um, nm)")
     if not rises_with_input(us, ys):
         r = float(np.corrcoef(us, ys)[0, 1])
         seen = (f"correlation {r:.2f}; input {float(np.min(us)):.4g} to {float(np.max(us)):.4g}, output span "
@@ -1281,6 +1287,8 @@ def _as_validation(v: Any, i: int) -> tuple[FloatArray, FloatArray, int]:
         return v.u, v.y, 0
     if isinstance(v, (tuple, list)) and len(v) in (2, 3):
         uu, yy = paired_signals(v[0], v[1], 0)
+        if uu.size < 20:  # (3 samples ended in numpy's "operands could not be broadcast": fuzzing)
+            raise ValueError(f"validation set {i} has {uu.size} samples; at least 20 are needed to judge a model on")
         first = int(v[2]) if len(v) == 3 else 0
         if not 0 <= first < uu.size - 1:
             raise ValueError(f"validation set {i}: the first scored sample {first} is outside its {uu.size} samples")

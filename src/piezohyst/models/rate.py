@@ -243,6 +243,10 @@ class RateDependent:
         object.__setattr__(self, "lag_weights", frozen(c))
         object.__setattr__(self, "dt", dt)
         object.__setattr__(self, "input_tau", as_scalar("input_tau", self.input_tau, nonnegative=True))
+        if self.input_tau > 0.0 and not math.exp(-float(self.dt) / self.input_tau) < 1.0:
+            # exp(-dt / tau) rounds to 1: the lag never moves, and its inverse divided by zero (fuzzing)
+            raise ValueError(f"input_tau of {self.input_tau:g} s is too long to resolve at dt = {float(self.dt):g} s "
+                             "(the lag would never move)")
         object.__setattr__(self, "input_lead_gain", as_scalar("input_lead_gain", self.input_lead_gain, nonnegative=True))
         object.__setattr__(self, "_a", frozen(np.exp(-dt / taus)))
 
