@@ -280,6 +280,19 @@ class FitResult:
 
 
 
+def check_output_scale(u: FloatArray, y: FloatArray) -> None:
+    """Refuse a record whose output per volt lies outside what floating point fits in (found by
+    fuzzing: y scaled by 1e200 ended in ``rmse=inf`` or "array must not contain infs or NaNs",
+    u scaled by 1e-300 in a weight of 5e295), naming the units to use. A constant u or y is left
+    to the callers' own messages."""
+    du, dy = float(np.ptp(u)), float(np.ptp(y))
+    if not (du > 0.0 and dy > 0.0):
+        return
+    if not (1e-100 < dy / du < 1e100 and np.isfinite(float(np.dot(y, y)))):
+        raise ValueError(f"the output per volt of input ({dy:.3g} over {du:.3g} V) is outside what floating point "
+                         "can fit: give u in volts and y in a unit of length near the motion's scale (um, nm)")
+
+
 def paired_signals(u: Any, y: Any, delay: int) -> tuple[FloatArray, FloatArray]:
     """``u`` and ``y`` checked and aligned for a sensor delay: ``u[k]`` pairs with ``y[k + delay]``."""
     us = as_signal("u", u, min_length=2)

@@ -93,7 +93,7 @@ from .glitches import bridge_glitches, find_glitches
 from .monotone import butterfly_hint, range_warnings, rises_with_input, rising_part, turn_indices
 from .linear import (DEFAULT_MARGIN, FewOutputLevelsError, Prepared, Structure, fit_prepared, fit_structure, mean_slope,
                      prepare)
-from .result import FitResult, paired_signals, unpack_data
+from .result import FitResult, check_output_scale, paired_signals, unpack_data
 
 #: Relative drop of the hold-out error a more complex candidate must bring to be preferred.
 MIN_GAIN = 0.02
@@ -533,12 +533,7 @@ def fit_model(
         raise ValueError(f"y is constant ({float(ys[0]):.6g}): the output never moves, so no model of how it "
                          "follows the input can be identified (a sensor that is not connected or not reading, a "
                          "stage that is not driven?)")
-    ratio = float(np.ptp(ys)) / float(np.ptp(us)) if float(np.ptp(us)) > 0 else math.inf
-    if not (1e-100 < ratio < 1e100 and math.isfinite(float(np.dot(ys, ys)))):
-        # (y scaled by 1e200 ended in "array must not contain infs or NaNs", which named nothing)
-        raise ValueError(f"the output per volt of input ({float(np.ptp(ys)):.3g} over {float(np.ptp(us)):.3g} V) is "
-                         "outside what floating point can fit: give u in volts and y in a unit of length near the "
-                         "motion's scale (um, nm)")
+    check_output_scale(us, ys)
     if not rises_with_input(us, ys):
         r = float(np.corrcoef(us, ys)[0, 1])
         seen = (f"correlation {r:.2f}; input {float(np.min(us)):.4g} to {float(np.max(us)):.4g}, output span "
