@@ -616,3 +616,37 @@ def test_safe_tuning_waits_for_a_creeping_hold_to_settle():
     assert "slew_estimate" in ctl.info
     assert ctl.tuning.ki > 0.1 * ctl.tuning.ki_model, ctl.tuning.method
     assert any(e["settled_first"] for e in ctl.tuning.experiments)
+
+
+class _AmplifierOff:
+    """A stage whose amplifier is off: the sensor reads the stage at rest plus its noise."""
+
+    dt = 1e-4
+    u_range = (0.0, 100.0)
+
+    def __init__(self, noise_only: bool = False, seed: int = 0):
+        self.rig = ph.VirtualRig(seed=seed)
+        self.noise_only = noise_only
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self):
+        self.rig.reset()
+
+    def step(self, u):
+        return float(self.rng.normal(0.0, 1.0)) if self.noise_only else self.rig.step(0.0)
+
+
+@pytest.mark.parametrize("noise_only, seed", [(False, 0), (True, 2)])
+def test_a_stage_that_does_not_follow_the_command_is_refused_as_such(noise_only, seed):
+    # found by fuzzing: an amplifier switched off was told its sensor was mounted the other way
+    # round; a pure-noise output (this seed) commissioned with a 10 % hold-out error
+    with pytest.raises(ValueError, match="hardly follows the command") as err:
+        ph.commission(_AmplifierOff(noise_only, seed))
+    assert "amplifier on" in str(err.value) and "_AmplifierOff.step()" in str(err.value)
+
+
+def test_track_flags_must_be_booleans(rig_and_controller):
+    rig, ctl = rig_and_controller
+    for name in ("feedback", "learning", "conditioning"):  # feedback="no" ran with feedback on
+        with pytest.raises(TypeError, match=name):
+            ctl.track(ref(1.0, rig, 2), **{name: "no"})

@@ -28,6 +28,32 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # ------------------------------------------------------------------------------------------------
 # the API census
+class _Stepper:
+    """A per-sample plant of range 0..100 V (the VirtualRig's stage without its compiled run)."""
+
+    dt = 1e-4
+    u_range = (0.0, 100.0)
+
+    def __init__(self):
+        self.rig = ph.VirtualRig(seed=0)
+
+    def reset(self):
+        self.rig.reset()
+
+    def step(self, u):
+        return self.rig.step(u)
+
+
+class _Player:
+    """A buffered plant whose play() answers with ``answer(table)``."""
+
+    def __init__(self, answer, dt=1e-4):
+        self.answer, self.dt = answer, dt
+
+    def play(self, table):
+        return self.answer(table)
+
+
 def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
     """(name, zero-argument call, words of which one must be in the message)."""
     from piezohyst import paper_values as pv
@@ -199,6 +225,17 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("model file misspelt parameter", lambda: model_from_dict(doc(parameters={**good["parameters"], "ofset": 1.0})),
          ("ofset",)),
         ("export_c kp negative", lambda: export_c(pi, tmp / "c_neg", kp=-1.0), ("kp",)),
+        ("open_loop beyond the plant's u_range", lambda: ph.open_loop(_Stepper(), [0.0, 1000.0, -500.0, 0.0]),
+         ("u_range",)),
+        ("play() returns None", lambda: ph.open_loop(_Player(lambda u: None), np.zeros(10)), ("play()",)),
+        ("play() returns complex", lambda: ph.open_loop(_Player(lambda u: u + 1j), np.zeros(10)), ("complex",)),
+        ("play() returns two columns", lambda: ph.open_loop(_Player(lambda u: np.c_[u, u]), np.zeros(10)),
+         ("shape",)),
+        ("plant dt numpy zero", lambda: ph.open_loop(_Player(lambda u: u, dt=np.float64(0.0)), np.zeros(10)),
+         ("dt",)),
+        ("identify_many outlier_mads nan", lambda: ph.fleet.identify_many(str(tmp), client="serial",
+                                                                          outlier_mads=nan), ("outlier_mads",)),
+        ("identify_many paths None", lambda: ph.fleet.identify_many(None, client="serial"), ("paths",)),
         ("resample_reference beyond memory", lambda: resample_reference(np.array([0.0, 1e6]), np.array([0.0, 1.0]),
                                                                          1e9), ("Hz",)),
     ]

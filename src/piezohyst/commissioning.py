@@ -173,7 +173,7 @@ from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
-from .identify.select import MODE_SEARCH_TOP, structural_mode_search
+from .identify.select import MODE_SEARCH_TOP, WEAK_CORRELATION, structural_mode_search
 from .identify.monotone import (DEAD_BINS, DeadRange, DeadRangeWarning, MonotoneRange, NotMonotoneWarning, dead_range,
                                 monotone_range, rises_with_input, rising_part, butterfly_hint)
 from .models.base import Compensator, kind_of
@@ -774,6 +774,9 @@ class CommissionedController:
         the conditioning sweep over the whole range (module docstring, step 3).
         """
         r = as_signal("reference", reference, min_length=2)
+        for name, flag in (("feedback", feedback), ("learning", learning), ("conditioning", conditioning)):
+            if flag is not None and not isinstance(flag, (bool, np.bool_)):  # feedback="no" ran with feedback
+                raise TypeError(f"{name} must be True or False (or None for the default), got {flag!r}")
         cond = self.conditioning if conditioning is None else bool(conditioning)
         if self.mode == "buffered":
             if feedback:
@@ -1637,15 +1640,27 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         y = guard.play(cmd)
         ds = Dataset(np.arange(cmd.size, dtype=np.float64) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "play"})
     ident_counts = guard.counts()
-    if not rises_with_input(ds.u[warmup:], ds.y[warmup:]):
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r_run = float(np.corrcoef(ds.u[warmup:], ds.y[warmup:])[0, 1])
+    if not rises_with_input(ds.u[warmup:], ds.y[warmup:]) or not r_run >= WEAK_CORRELATION:
         rising = rising_part(ds.u[warmup:], ds.y[warmup:])
+        hint = butterfly_hint(rising, "command", " V", "keep the command where it rises "
+                              + ("" if rising is None else
+                                 f"(commission(plant, u_range=({rising[0]:.4g}, {rising[1]:.4g})))"))
+        method = f"{type(plant).__name__}.{'step' if mode == 'step' else 'play'}()"
+        if not (r_run < 0.0 and (r_run <= -WEAK_CORRELATION or rising is not None)):  # (NaN: a constant output)
+            # found by fuzzing: an amplifier switched off was told its sensor was mounted the other
+            # way round, and a pure-noise output commissioned once in four seeds (a butterfly loop,
+            # which rises over part of the range, keeps the message below)
+            raise ValueError(
+                f"the plant's displacement hardly follows the command over the identification run (correlation "
+                f"{r_run:.2f} over {float(np.min(ds.u)):.4g}..{float(np.max(ds.u)):.4g} V; output span "
+                f"{float(np.ptp(ds.y[warmup:])):.3g} um): is the amplifier on, the stage connected, and does "
+                f"{method} return this stage's sensor reading in um?" + hint)
         raise ValueError(
             f"the plant's displacement falls as the command rises (its gain is negative, e.g. a sensor "
-            f"mounted the other way round): make {type(plant).__name__}.step() return the displacement "
-            "with the sign that rises with the command (multiply it by -1)"
-            + butterfly_hint(rising, "command", " V", "keep the command where it rises "
-                             + ("" if rising is None else
-                                f"(commission(plant, u_range=({rising[0]:.4g}, {rising[1]:.4g})))")))
+            f"mounted the other way round): make {method} return the displacement "
+            "with the sign that rises with the command (multiply it by -1)" + hint)
     mono = monotone_range(ds.u[warmup:], ds.y[warmup:])
     # an amplifier slower than the excitation, looked for on every run whose step limit the caller
     # left to the default, before a model is fitted to the distorted run: where an amplifier lag

@@ -126,12 +126,14 @@ def plant_mode(plant: Any) -> str:
 def check_plant(plant: Any) -> float:
     """The plant's ``dt``, or a TypeError that says what the Plant and BufferedPlant protocols need."""
     dt = getattr(plant, "dt", None)
-    ok_dt = not isinstance(dt, bool) and isinstance(dt, (int, float, np.floating)) and dt > 0 and np.isfinite(dt)
+    ok_dt = (not isinstance(dt, (bool, np.bool_)) and isinstance(dt, (int, float, np.integer, np.floating))
+             and dt > 0 and np.isfinite(dt))
     stepper = callable(getattr(plant, "step", None)) and callable(getattr(plant, "reset", None))
     player = callable(getattr(plant, "play", None))
     if not ok_dt or not (stepper or player):
+        why = "" if ok_dt else f" ({type(plant).__name__}.dt is {dt!r})"
         raise TypeError("plant must follow the Plant protocol (a positive float 'dt', reset() and step(u)) "
-                        "or the BufferedPlant protocol (a positive float 'dt' and play(u_table))")
+                        f"or the BufferedPlant protocol (a positive float 'dt' and play(u_table)){why}")
     return float(dt)  # type: ignore[arg-type]
 
 
@@ -309,9 +311,24 @@ def _recorded(plant: Any, u: FloatArray, mode: str, progress: list[int] | None =
     ``progress`` (a one-element list), when given, holds the index of the command being sent: where
     a step that raised (an interrupt, a fault of the plant) left the table."""
     if mode == "buffered":
-        y = np.asarray(plant.play(np.ascontiguousarray(u, dtype=np.float64)), dtype=np.float64).ravel()
+        got = plant.play(np.ascontiguousarray(u, dtype=np.float64))
+        # as strictly as step()'s answers (found by fuzzing: None was "1 values", complex values lost
+        # their imaginary part with only numpy's warning, an (n, 2) array was "2n values")
+        what = f"the plant's play() ({type(plant).__name__})"
+        if got is None or isinstance(got, (str, bytes)):
+            raise TypeError(f"{what} returned {type(got).__name__}, not one measurement (um) per command")
+        if np.iscomplexobj(got):
+            raise TypeError(f"{what} returned complex values; a measurement is a real number (um)")
+        try:
+            arr = np.asarray(got, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"{what} returned something that is not numbers ({exc})") from None
+        if arr.ndim > 1 and arr.size != max(arr.shape):
+            raise ValueError(f"{what} returned an array of shape {arr.shape}; one measurement per command, "
+                             f"{u.size} of them, is needed")
+        y = arr.ravel()
         if y.size != u.size:
-            raise ValueError(f"the plant's play() returned {y.size} values for a table of {u.size} commands")
+            raise ValueError(f"{what} returned {y.size} values for a table of {u.size} commands")
         return y
     at = progress if progress is not None else [0]
     out = np.empty(u.size)
@@ -331,11 +348,20 @@ def play_checked(plant: Any, u: FloatArray) -> FloatArray:
 def open_loop(plant: Any, u: Any) -> Dataset:
     """An open-loop run of any plant: ``plant.excite(u)`` when it has one (compiled for the
     VirtualRig, from rest), else ``reset()`` and one ``step`` per sample, else one ``play`` of the
-    whole table (from the buffered plant's present state)."""
+    whole table (from the buffered plant's present state). Commands beyond the range the plant
+    states (``u_range``) are refused, not sent."""
     if hasattr(plant, "excite"):
         return plant.excite(u)  # type: ignore[no-any-return]
     dt = check_plant(plant)
     x = as_signal("u", u)
+    rng = plant_u_range(plant, None)
+    if rng is not None:  # sent as given, so never beyond the range the plant states (found by fuzzing)
+        outside = (x < rng[0]) | (x > rng[1])
+        if outside.any():
+            i = int(np.argmax(outside))
+            raise ValueError(f"u[{i}] = {x[i]:.6g} V is outside the plant's u_range {rng[0]:g}..{rng[1]:g} V "
+                             f"({int(outside.sum())} of {x.size} commands): open_loop sends the commands as given; "
+                             "keep them inside the range (np.clip) or state the amplifier's range in u_range")
     if plant_mode(plant) == "step":
         plant.reset()
         y = bridge_dropouts(_recorded(plant, x, "step"), dt, f"the plant's step() ({type(plant).__name__})")[0]
