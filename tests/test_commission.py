@@ -650,3 +650,27 @@ def test_track_flags_must_be_booleans(rig_and_controller):
     for name in ("feedback", "learning", "conditioning"):  # feedback="no" ran with feedback on
         with pytest.raises(TypeError, match=name):
             ctl.track(ref(1.0, rig, 2), **{name: "no"})
+
+
+class _SaturatedSensor(_AmplifierOff):
+    """A stage whose sensor stops at 0.12 um, reached at about 5 V of its 0..100 V."""
+
+    def step(self, u):
+        return min(self.rig.step(u), 0.12)
+
+
+def test_a_stage_that_moves_over_a_small_part_of_the_range_is_pointed_there():
+    # found by fuzzing: it commissioned over 0..100 V without a word, and tracking then blamed the
+    # step limit ("slow the reference down") for a 1 Hz sinusoid
+    with pytest.raises(ValueError, match=r"changes only over 0\.\.10 V.*u_range=\(0, 10\)"):
+        ph.commission(_SaturatedSensor())
+
+
+def test_clipping_at_speed_is_not_blamed_on_the_reach(rig_and_controller):
+    # found by fuzzing: at 50 Hz the stage spanned the reference, yet the warning told the user to
+    # keep the reference within what the stage reaches; beyond the reach, that is still the advice
+    rig, ctl = rig_and_controller
+    with pytest.warns(ph.ClippingWarning, match="spans the reference here, so at this speed"):
+        ctl.track(ph.sinusoid(50.0, 5, 0.2, 1.8, rig.dt))
+    with pytest.warns(ph.ClippingWarning, match="Keep the reference within what the stage reaches"):
+        ctl.track(ph.sinusoid(1.0, 2, -1.0, 3.0, rig.dt))

@@ -224,6 +224,9 @@ def test_a_model_file_is_read_whole_or_refused(tmp_path):
         load(lambda p: p["static"]["parameters"].update(weights=[str(w) for w in p["static"]["parameters"]["weights"]]))
     # an optional parameter written out at its default still loads
     assert load(lambda p: p.update(input_lead_gain=0.0)) == rate
+    # (found by the fuzz test: text under an empty name, which the message once could not quote)
+    with pytest.raises(ValueError, match=r"parameters\.\[0\]\[0\] holds text"):
+        load(lambda p: p.update({"": [[""]]}))
 
 
 def test_an_unbounded_bouc_wen_loop_is_refused_where_it_would_give_nan():

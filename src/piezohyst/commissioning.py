@@ -313,12 +313,54 @@ def _warn_if_guarded(res: TrackingResult, what: str) -> None:
     if sent and clipped > CLIPPED_SHARE * sent:
         y = res.output[np.isfinite(res.output)]
         reached = f"{float(np.min(y)):.4g} to {float(np.max(y)):.4g} um" if y.size else "nothing"
+        r_lo, r_hi = float(np.min(res.reference)), float(np.max(res.reference))
+        spanned = bool(y.size) and float(np.min(y)) <= r_lo + 0.02 * (r_hi - r_lo) and \
+            float(np.max(y)) >= r_hi - 0.02 * (r_hi - r_lo)
+        # where the stage did reach the reference's extent, the range was short of what the speed
+        # asked for, not of the stroke (found by fuzzing: a 50 Hz run told to keep within a reach it met)
+        why = ("the stage spans the reference here, so at this speed the feedforward asks for more voltage "
+               "than the range gives. Slow the reference" if spanned else
+               "the error there is the range's, not the controller's. Keep the reference within what the "
+               "stage reaches")
         warnings.warn(f"{what}: {clipped} of {sent} commands were clipped to the amplifier's range "
                       f"({safety.get('u_low_V', float('nan')):g} to {safety.get('u_high_V', float('nan')):g} V): the "
-                      f"reference asks for {float(np.min(res.reference)):.4g} to {float(np.max(res.reference)):.4g} um, "
-                      f"the stage reached {reached} in this run; the error there is the range's, not the "
-                      "controller's. Keep the reference within what the stage reaches, or widen u_range if the "
-                      "amplifier allows", ClippingWarning, stacklevel=3)
+                      f"reference asks for {r_lo:.4g} to {r_hi:.4g} um, the stage reached {reached} in this run; "
+                      f"{why}, or widen u_range if the amplifier allows", ClippingWarning, stacklevel=3)
+
+
+def moving_part(u: FloatArray, y: FloatArray, bins: int = 20, share: float = 0.95) -> tuple[float, float] | None:
+    """The part of the command's range over which the output does ``share`` of its changing,
+    where that is at most half the range, else None: the output's mean in each of ``bins`` equal
+    parts of the range, and the shortest run of parts whose steps between means add up to
+    ``share`` of all of them. A stage that saturates (or a sensor at the end of its range) beyond
+    a tenth of the range changes over that tenth; an output of noise alone changes everywhere.
+
+    >>> u = np.linspace(0.0, 100.0, 1001)
+    >>> moving_part(u, np.minimum(u, 10.0)), moving_part(u, np.sin(u))  # (the part's bins, whole)
+    ((0.0, 15.0), None)
+    """
+    lo, hi = float(np.min(u)), float(np.max(u))
+    if not hi > lo:
+        return None
+    idx = np.minimum(((u - lo) / (hi - lo) * bins).astype(np.int64), bins - 1)
+    counts = np.bincount(idx, minlength=bins)
+    if np.any(counts == 0):
+        return None
+    means = np.bincount(idx, weights=y, minlength=bins) / counts
+    steps = np.abs(np.diff(means))
+    total = float(steps.sum())
+    if not total > 0.0:
+        return None
+    best: tuple[int, int] | None = None
+    for a in range(steps.size):
+        acc = np.cumsum(steps[a:])
+        b = a + int(np.searchsorted(acc, share * total))
+        if b < steps.size and (best is None or b - a < best[1] - best[0]):
+            best = (a, b)
+    if best is None or (best[1] - best[0] + 2) > bins // 2:
+        return None
+    width = (hi - lo) / bins
+    return lo + best[0] * width, lo + (best[1] + 2) * width
 
 
 def _limits(dt: float, u_range: Any, max_step_fraction: float | None, rest: float | None) -> CommandLimits:
@@ -1652,11 +1694,16 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
             # found by fuzzing: an amplifier switched off was told its sensor was mounted the other
             # way round, and a pure-noise output commissioned once in four seeds (a butterfly loop,
             # which rises over part of the range, keeps the message below)
+            part = moving_part(ds.u[warmup:], ds.y[warmup:])
+            if part is not None and not hint:
+                hint = (f". Its output changes only over {part[0]:.4g}..{part[1]:.4g} V (a stage or a sensor that "
+                        f"saturates beyond?): commission(plant, u_range=({part[0]:.4g}, {part[1]:.4g})) identifies "
+                        "it there")
             raise ValueError(
                 f"the plant's displacement hardly follows the command over the identification run (correlation "
                 f"{r_run:.2f} over {float(np.min(ds.u)):.4g}..{float(np.max(ds.u)):.4g} V; output span "
                 f"{float(np.ptp(ds.y[warmup:])):.3g} um): is the amplifier on, the stage connected, and does "
-                f"{method} return this stage's sensor reading in um?" + hint)
+                f"{method} return this stage's sensor reading in um?" + (" " + hint[2:] if hint else ""))
         raise ValueError(
             f"the plant's displacement falls as the command rises (its gain is negative, e.g. a sensor "
             f"mounted the other way round): make {method} return the displacement "

@@ -212,7 +212,7 @@ def model_from_dict(doc: Any, *, source: str = "model") -> Any:
         raise ModelFileError(f"{source}: unknown model kind {kind!r}; known kinds are {kinds()}") from None
     text = _text_in_arrays(params, "parameters")
     if text:
-        raise ModelFileError(f"{source}: {text} holds text ({_short(text, params)}) where a number belongs; a model "
+        raise ModelFileError(f"{source}: {text[0]} holds text ({text[1]!r:.40}) where a number belongs; a model "
                              "file's numbers are JSON numbers, not strings")
     read = _ReadKeys(params)
     try:
@@ -284,8 +284,9 @@ class _ReadKeys(dict):  # type: ignore[type-arg]
         return out
 
 
-def _text_in_arrays(obj: Any, path: str) -> str | None:
-    """The path of the first list that holds a string (``"0.0307"`` for a weight), or None."""
+def _text_in_arrays(obj: Any, path: str) -> tuple[str, str] | None:
+    """The path of the first list item that is a string (``"0.0307"`` for a weight) and the string,
+    or None."""
     if isinstance(obj, dict):
         for k, v in obj.items():
             found = _text_in_arrays(v, f"{path}.{k}")
@@ -294,21 +295,11 @@ def _text_in_arrays(obj: Any, path: str) -> str | None:
     elif isinstance(obj, list):
         for i, v in enumerate(obj):
             if isinstance(v, str):
-                return f"{path}[{i}]"
+                return f"{path}[{i}]", v
             found = _text_in_arrays(v, f"{path}[{i}]")
             if found:
                 return found
     return None
-
-
-def _short(path: str, params: dict[str, Any]) -> str:
-    """The value at ``path`` (as :func:`_text_in_arrays` names it), shortened for a message."""
-    import re
-
-    obj: Any = {"parameters": params}
-    for name, index in re.findall(r"\.?([^.\[\]]+)|\[(\d+)\]", path):
-        obj = obj[int(index)] if index else obj[name]
-    return repr(obj)[:40]
 
 
 def _strict_loads(text: str, source: str) -> Any:
