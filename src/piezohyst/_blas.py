@@ -23,6 +23,15 @@ import sys
 import threading
 from typing import Any, Callable, Iterator, TypeVar
 
+def usable_cores() -> int:
+    """The CPUs this process may run on (its affinity mask where the platform has one, else the
+    machine's count), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
 # (set, get) function names, newest builds first
 _NAMES = (("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
           ("scipy_openblas_set_num_threads", "scipy_openblas_get_num_threads"),

@@ -167,10 +167,9 @@ class BackgroundFigures:
         interpreter to start)."""
         if not sys.executable:
             return False
-        try:
-            return len(os.sched_getaffinity(0)) > 1
-        except AttributeError:  # not Linux
-            return (os.cpu_count() or 1) > 1
+        from ._blas import usable_cores
+
+        return usable_cores() > 1
 
     def submit(self, jobs: list[FigureJob], out: Any, formats: tuple[str, ...], *, force: bool = True,
                producer: str | None = None) -> None:

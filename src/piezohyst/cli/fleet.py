@@ -38,9 +38,9 @@ MAX_WORKERS_PER_CORE = 4
 
 
 def _cores() -> int:
-    import os
+    from .._blas import usable_cores
 
-    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+    return usable_cores()
 
 
 def _mads(text: str) -> float:

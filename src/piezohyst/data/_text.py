@@ -14,7 +14,6 @@ from __future__ import annotations
 import codecs
 import csv
 import json
-import os
 import re
 from collections import Counter
 from collections.abc import Sequence
@@ -324,10 +323,9 @@ def _parallel_read_beats_usecols(pd: Any, size: int, wanted: int, fields: int) -
     except (KeyError, AttributeError, pd.errors.OptionError):
         return False
     if threads is None:
-        try:
-            threads = len(os.sched_getaffinity(0))
-        except (AttributeError, OSError):  # pragma: no cover - not Linux
-            threads = os.cpu_count() or 1
+        from .._blas import usable_cores
+
+        threads = usable_cores()
     return int(threads) > 1
 
 
