@@ -155,3 +155,37 @@ def test_safe_tuning_hold_stops_on_its_check_as_python(controller, monkeypatch):
     for key in ra:
         np.testing.assert_array_equal(ra[key], rb[key])
 
+
+
+def test_a_held_position_is_followed_to_the_sensor_noise_in_both_loops(controller):
+    # a reference that holds 1.2 um with a dither far below the sensor's noise: the error is the
+    # noise, and the loop follows it (the watch's window compared the error's RMS with the
+    # reference's span alone, 2e-4 um here, and stopped this hold as "not following")
+    ctl = controller
+    noise = ctl.sensor_noise_um
+    assert noise is not None and noise > 0
+    ref = 1.2 + 1e-4 * np.sin(np.linspace(0.0, 20.0, 6000))
+    fast, _, slow, _ = _both(ctl, ref, learning=False)
+    assert fast is not None
+    np.testing.assert_array_equal(fast.output, slow.output)
+    settled = slow.error[slow.error.size // 5:]
+    assert float(np.sqrt(np.mean(settled ** 2))) < 2.0 * noise, (float(np.sqrt(np.mean(settled ** 2))), noise)
+
+
+def test_the_watch_stops_a_hold_left_far_from_its_position_when_the_noise_is_known():
+    from piezohyst.control.tracking import LoopWatch
+
+    rng = np.random.default_rng(0)
+    r = np.full(3000, 1.0)
+    follow = r + 0.003 * rng.standard_normal(r.size)  # the sensor's noise alone: followed
+    away = follow + 0.05  # 17 noise RMS away from the held position: not followed
+
+    def run(y, noise):
+        w = LoopWatch(r, u_range=None, feedback_on=True, limit=10.0, dt=1e-4, describe=lambda: "test", noise=noise)
+        for k in range(r.size):
+            w.output(k, float(y[k]), y)
+
+    run(follow, 0.003)
+    with pytest.raises(UnstableLoopError, match="5 times the sensor's noise RMS"):
+        run(away, 0.003)
+    run(away, None)  # without the noise a constant reference has no scale: only the limit watches it

@@ -970,7 +970,8 @@ class CommissionedController:
         vpu = self.volts_per_um
         span = float(np.ptp(r))
         watch = LoopWatch(r, u_range=guard.u_range, feedback_on=pid is not None,
-                          limit=10 * span + 10, dt=dt, describe=lambda: f"controller {self.describe()}")
+                          limit=10 * span + 10, dt=dt, describe=lambda: f"controller {self.describe()}",
+                          noise=self.sensor_noise_um)
         guard.reset()
         # lead-in: from rest to the first target, slowly enough for the step limit
         desired, cmd = self._lead_in(ff, limits, float(rt[min(d, n - 1)]), conditioning)
@@ -1272,7 +1273,7 @@ def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, p
     ff_lim, ff_lim_state = limits_arrays(ff)
     pid_g, pid_state = pid_arrays(pid)
     g, g_state = guard.kernel_arrays()
-    wv = np.array([watch.lo_u, watch.hi_u, watch.limit, watch.span, watch.settle, watch.WINDOW, watch.CHATTER],
+    wv = np.array([watch.lo_u, watch.hi_u, watch.limit, watch.follow_rms, watch.settle, watch.WINDOW, watch.CHATTER],
                   dtype=np.float64)
     w_state = np.array([watch.n_lo, watch.n_hi], dtype=np.float64)
     loop_state = np.array([y_prev, 0.0])

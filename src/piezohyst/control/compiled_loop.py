@@ -89,7 +89,8 @@ def output_limits(raw: float, ff_lim: FloatArray, ff_lim_state: FloatArray) -> f
 def watch_output_stops(y: FloatArray, r: FloatArray, k: int, limit: float, watch_window: bool, settle: int,
                        w: int, span: float) -> bool:  # pragma: no cover
     """:meth:`LoopWatch.output` for sample k: the output is not finite or further than ``limit``
-    from the reference, or the RMS error of the window ending at k exceeds ``span`` (with a hair
+    from the reference, or the RMS error of the window ending at k exceeds ``span`` (the watch's
+    ``follow_rms``: the reference's span, or a multiple of the sensor's noise if more; with a hair
     of margin: at the threshold the Python loop, summing differently, decides)."""
     yk = y[k]
     if not math.isfinite(yk) or abs(yk - r[k]) > limit:
@@ -236,7 +237,7 @@ def run_compiled(plant: Any, r: FloatArray, feedforward: Any, feedback: Any, *, 
     kind, ff_a, ff_b, ff_state, ff_s = spec
     ff_lim, ff_lim_state = limits_arrays(feedforward)
     pid_g, pid_state = pid_arrays(feedback)
-    wv = np.array([watch.lo_u, watch.hi_u, watch.limit, watch.span, watch.settle, watch.WINDOW, watch.CHATTER],
+    wv = np.array([watch.lo_u, watch.hi_u, watch.limit, watch.follow_rms, watch.settle, watch.WINDOW, watch.CHATTER],
                   dtype=np.float64)
     n = r.size
     y = np.empty(n)

@@ -218,23 +218,31 @@ class LoopWatch:
       or more above the range within 200 samples (an unstable loop on a saturating amplifier does
       not diverge, it oscillates between the limits);
     * with feedback on, after the first fifth of the run: the error's RMS over 500 samples
-      exceeds the reference's span (the loop is not following at all).
+      exceeds the reference's span (the loop is not following at all), or, where the sensor's
+      noise RMS ``noise`` (µm) is known, :data:`FOLLOW_NOISE_FACTOR` times it if that is more: a
+      reference that holds a position (a span below the noise) is followed when the error is the
+      sensor's noise (the span alone stopped such a hold, followed to the noise, as unstable).
 
     ``describe()`` names the controller settings in the error message.
     """
 
     WINDOW = 500
     CHATTER = 200
+    #: The window's error RMS, in sensor-noise RMS, below which a loop counts as following.
+    FOLLOW_NOISE_FACTOR = 5.0
 
     def __init__(self, r: FloatArray, *, u_range: Any, feedback_on: bool, limit: float, dt: float,
-                 describe: Any):
+                 describe: Any, noise: float | None = None):
         self.r = r
         self.dt = dt
         self.limit = limit
         self.describe = describe
         self.span = float(np.ptp(r))
+        self.noise = float(noise) if noise is not None and math.isfinite(noise) and noise > 0 else None
+        #: the window check's threshold (µm): the span, or FOLLOW_NOISE_FACTOR noise RMS if more
+        self.follow_rms = max(self.span, self.FOLLOW_NOISE_FACTOR * self.noise if self.noise else 0.0)
         self.settle = max(r.size // 5, self.WINDOW)
-        self.watch_window = feedback_on and self.span > 0 and r.size >= 2 * self.settle
+        self.watch_window = feedback_on and self.follow_rms > 0 and r.size >= 2 * self.settle
         self.lo_u, self.hi_u = (float(u_range[0]), float(u_range[1])) if u_range is not None else (-math.inf, math.inf)
         self.watch_chatter = feedback_on and u_range is not None
         self.n_lo = self.n_hi = 0
@@ -269,9 +277,12 @@ class LoopWatch:
         if self.watch_window and k >= self.settle and k % w == w - 1:
             ew = y[k - w + 1: k + 1] - self.r[k - w + 1: k + 1]
             rms = float(np.sqrt(np.mean(ew * ew)))
-            if rms > self.span:
+            if rms > self.follow_rms:
+                scale = (f"the reference's whole span ({self.span:.4g} um)" if self.follow_rms == self.span else
+                         f"{self.FOLLOW_NOISE_FACTOR:g} times the sensor's noise RMS ({self.follow_rms:.4g} um; "
+                         f"the reference spans {self.span:.4g} um)")
                 reason = (f"the loop stopped following: the error's RMS over samples {k - w + 1}..{k} "
-                          f"is {rms:.4g} um, more than the reference's whole span ({self.span:.4g} um)")
+                          f"is {rms:.4g} um, more than {scale}")
                 raise UnstableLoopError(f"{reason}, with {self.describe()}; lower the feedback gains",
                                         reason=reason, sample=k)
 
