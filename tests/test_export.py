@@ -389,3 +389,36 @@ def test_export_reads_negative_numbers_in_exponent_notation(tmp_path, capsys):
     assert main(["export", str(path), "--to", "c", "--out", str(tmp_path / "o"), "--u-min", "-1e2",
                  "--u-max", "1.2e2", "--json"]) == 0
     assert '"amplifier_range_V": [\n    -100.0,\n    120.0\n  ]' in capsys.readouterr().out
+
+
+def test_feedback_gains_that_diverge_on_the_model_are_refused_and_those_below_converge():
+    # a linear stage (one play operator of threshold 0: y = w u) behind its exact feedforward, the
+    # PI of compensator_step_fb measuring one sample after each command, a constant disturbance
+    # for the integral to remove: Jury's test says stable only for 2 kp w + ki dt w < 2; the
+    # exporter refuses the gains at or beyond that bound and takes those below it
+    from piezohyst.export.c import generate_c
+
+    w, dt, rng_u = 0.2, 1e-4, (-1000.0, 1000.0)
+    model = ph.PrandtlIshlinskii(np.array([0.0]), np.array([w]))
+
+    def final_error(kp, ki, n=3000):
+        ff = model.compensator(None)
+        ff.reset()
+        pid = ph.PID(kp, ki, 0.0, dt)
+        y, e = 0.0, 0.0
+        for _ in range(n):
+            e = 5.0 - y
+            y = w * (ff.step(5.0) + pid.step(e, 0)) + 0.5  # what the stage shows at the next sample
+            if not abs(y) < 1e6:
+                return math.inf
+        return abs(e)
+
+    a = 0.3  # kp w
+    for share, converges in ((0.9, True), (1.1, False)):
+        kp, ki = a / w, share * (2.0 - 2.0 * a) / (w * dt)
+        assert (final_error(kp, ki) < 1e-6) is converges, (share, final_error(kp, ki))
+        if converges:
+            generate_c(model, u_range=rng_u, kp=kp, ki=ki, fb_dt=dt)
+        else:
+            with pytest.raises(ValueError, match="diverge on this model"):
+                generate_c(model, u_range=rng_u, kp=kp, ki=ki, fb_dt=dt)

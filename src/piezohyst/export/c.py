@@ -150,6 +150,48 @@ def _limits_code(u_range: tuple[float, float] | None, max_slew: float | None) ->
     return "\n".join(lines)
 
 
+def mean_slope(model: Any, dt: float | None, u_range: tuple[float, float]) -> float | None:
+    """The model's mean slope over ``u_range`` (µm/V): the output's span over the input's on the
+    second of two 1 Hz full-range cycles (at the model's ``dt`` where it has dynamics); None where
+    it cannot be simulated so (no ``dt``, more than 10^6 samples, an error)."""
+    from ..signals import sinusoid
+
+    lo, hi = float(u_range[0]), float(u_range[1])
+    step = dt if model.dynamic else 1e-3
+    if not hi > lo or step is None or not 0.0 < float(step) and 2.0 / float(step) <= 1e6:
+        return None
+    u = sinusoid(1.0, 2, lo, hi, float(step))
+    try:
+        y = np.asarray(model.simulate(u, step if model.dynamic else None), dtype=np.float64)
+    except (ValueError, ArithmeticError):
+        return None
+    y = y[y.size // 2:]
+    g = float(np.ptp(y)) / (hi - lo) if np.all(np.isfinite(y)) else math.nan
+    return g if math.isfinite(g) and g > 0.0 else None
+
+
+def _check_feedback_gains(model: Any, dt: float | None, rng: tuple[float, float], kp: float, ki: float,
+                          fdt: float) -> None:
+    """Refuse compiled-in gains that diverge on any stage the model describes: with the
+    feedforward inverting the model, a command change ``du`` moves the stage by ``g du`` (``g``
+    the local slope), and the loop of ``compensator_step_fb`` (``e`` measured one sample after the
+    command, ``I += ki dt e``, ``u = kp e + I``) is ``y[k+1] = (1 - a - b) y[k] + a y[k-1]`` with
+    ``a = kp g``, ``b = ki dt g``: stable only for ``2 a + b < 2`` (Jury's test), and only less so
+    with more delay or dynamics. Checked on the model's mean slope, which its steepest part
+    exceeds: a refusal is a loop that diverges there for certain."""
+    g = mean_slope(model, dt, rng)
+    if g is None:
+        return
+    a, b = kp * g, ki * fdt * g
+    if 2.0 * a + b >= 2.0:
+        raise ValueError(
+            f"the feedback gains diverge on this model: with kp={kp:g} V/um, ki={ki:g} V/(um s) and a "
+            f"sample period of {fdt:g} s, on the model's mean slope over {rng[0]:g}..{rng[1]:g} V ({g:.4g} um/V) "
+            f"the loop gain 2 kp g + ki dt g is {2.0 * a + b:.4g}, and a loop that measures one sample after "
+            f"its command is stable only below 2 (less with delay or resonance). Lower the gains"
+            + (", or check the sample rate (in Hz)" if b > a else ""))
+
+
 def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, float] | None = None,
                max_slew: float | None = None, provenance: list[str] | None = None, kp: float = 0.0,
                ki: float = 0.0, fb_delay: int = 0, fb_dt: float | None = None) -> CExport:
@@ -194,6 +236,9 @@ def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, flo
     fdt = fb_dt if fb_dt is not None else dt
     if ki != 0.0 and fdt is None:
         raise ValueError("integral feedback needs the sample period: give fb_dt (or dt)")
+    if (kp or ki) and rng is not None:
+        _check_feedback_gains(model, dt if model.dynamic else None, rng, float(kp), float(ki),
+                              float(fdt) if fdt is not None else 0.0)
     em = CEmitter()
     for reserved in ("ph_last", "ph_have_last", "ph_limit", "ph_fb_kp", "ph_fb_ki", "ph_fb_int", "ph_fb_sat",
                      "ph_fb_ref", "ph_fb_pos", "compensator_reset", "compensator_step", "compensator_step_fb",
