@@ -224,7 +224,12 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
          ("weights",)),
         ("model file misspelt parameter", lambda: model_from_dict(doc(parameters={**good["parameters"], "ofset": 1.0})),
          ("ofset",)),
+        ("model file weights 1e308 (sum overflows)", lambda: model_from_dict(
+            doc(parameters={**good["parameters"], "weights": [1e308] * len(good["parameters"]["weights"])})),
+         ("weights[0]", "1e+308")),
         ("export_c kp negative", lambda: export_c(pi, tmp / "c_neg", kp=-1.0), ("kp",)),
+        ("export_c integral gain diverging at its sample period", lambda: export_c(pi, tmp / "c_div", u_range=(0.0, 100.0),
+                                                                                   ki=1.0, fb_dt=1e300), ("diverge",)),
         ("open_loop beyond the plant's u_range", lambda: ph.open_loop(_Stepper(), [0.0, 1000.0, -500.0, 0.0]),
          ("u_range",)),
         ("play() returns None", lambda: ph.open_loop(_Player(lambda u: None), np.zeros(10)), ("play()",)),

@@ -214,6 +214,12 @@ def model_from_dict(doc: Any, *, source: str = "model") -> Any:
     if text:
         raise ModelFileError(f"{source}: {text[0]} holds text ({text[1]!r:.40}) where a number belongs; a model "
                              "file's numbers are JSON numbers, not strings")
+    huge = _huge_number(params, "parameters")
+    if huge:
+        # (found by fuzzing: weights of 1e308 loaded, summed to inf and simulated to NaN, silently)
+        raise ModelFileError(f"{source}: {huge[0]} is {huge[1]:g}, beyond any physical parameter (a model file's "
+                             f"numbers stay below {HUGE_PARAMETER:g} in magnitude, where sums and products of "
+                             "them cannot overflow)")
     read = _ReadKeys(params)
     try:
         model = registry_from_dict(kind, read)
@@ -299,6 +305,25 @@ def _text_in_arrays(obj: Any, path: str) -> tuple[str, str] | None:
             found = _text_in_arrays(v, f"{path}[{i}]")
             if found:
                 return found
+    return None
+
+
+#: The largest magnitude a model file's parameter may have: far beyond any physical value in any
+#: unit, and small enough that a model's sums and products of its parameters stay finite.
+HUGE_PARAMETER = 1e100
+
+
+def _huge_number(obj: Any, path: str) -> tuple[str, float] | None:
+    """The path and value of the first number in ``obj`` beyond :data:`HUGE_PARAMETER` in
+    magnitude, or None."""
+    items = obj.items() if isinstance(obj, dict) else enumerate(obj) if isinstance(obj, list) else ()
+    for k, v in items:
+        where = f"{path}.{k}" if isinstance(obj, dict) else f"{path}[{k}]"
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) > HUGE_PARAMETER:
+            return where, float(v)
+        found = _huge_number(v, where) if isinstance(v, (dict, list)) else None
+        if found:
+            return found
     return None
 
 
