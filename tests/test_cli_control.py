@@ -116,6 +116,21 @@ def test_track_a_reference_file_of_any_shape_with_its_own_period(tmp_path, capsy
     assert b"Tracking" in p.stderr
 
 
+def test_track_a_reference_that_holds_still_prints_no_percentage(tmp_path, capsys):
+    # a constant reference has no span: the percentages are "-" with a note (they printed "nan"),
+    # null in --json, and the errors in um stand
+    ref = tmp_path / "hold.csv"
+    np.savetxt(ref, np.column_stack([np.arange(3000) * 1e-4, np.full(3000, 1.2)]), delimiter=",", header="t,x",
+               comments="")
+    model = str(_pi_model_file(tmp_path))
+    assert main(["track", "--model", model, "--reference", str(ref)]) == 0
+    out = capsys.readouterr().out
+    assert "nan" not in out and "the reference does not move" in out
+    assert main(["track", "--model", model, "--reference", str(ref), "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)["results"][0]
+    assert r["e_max_percent"] is None and r["e_max_um"] > 0
+
+
 def _pi_model_file(tmp_path):
     import piezohyst as ph
 

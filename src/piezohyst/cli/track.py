@@ -5,6 +5,7 @@ paper's figures of merit and, with ``-o``, write the runs."""
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
 
 from ._common import (UsageError, add_rig_options, check_sinusoids, console, finite_float, freqs, nonnegative_float,
@@ -179,12 +180,18 @@ def _print_track(args, rows, rig, extra=None) -> int:  # type: ignore[no-untyped
     for c in ("run", "method", "e_max (µm)", "e_max % of span", "RMSE (µm)", "RMSE % of span", "clipped",
               *(("noise floor %",) if floor else ())):
         t.add_column(c, justify="right" if c not in ("method", "run") else "left")
+    def pct(x: Any) -> str:  # a reference that does not move has no span to take a percentage of
+        return f"{x:.2f}" if x is not None and math.isfinite(x) else "-"
+
     for r in rows:
-        t.add_row(r["run"], r["method"], f"{r['e_max_um']:.4f}", f"{r['e_max_percent']:.2f}",
-                  f"{r['rmse_um']:.4f}", f"{r['rmse_percent']:.2f}", str(r["clipped_samples"]),
+        t.add_row(r["run"], r["method"], f"{r['e_max_um']:.4f}", pct(r["e_max_percent"]),
+                  f"{r['rmse_um']:.4f}", pct(r["rmse_percent"]), str(r["clipped_samples"]),
                   *((f"{r['noise_floor_percent']:.2f}" if "noise_floor_percent" in r else "",) if floor else ()))
     con = console()
     con.print(t)
+    if any(not (r["e_max_percent"] is not None and math.isfinite(r["e_max_percent"])) for r in rows):
+        con.print("-: the reference does not move (its span is 0 um), so the errors have no span to be a "
+                  "percentage of; read them in um")
     if floor:
         con.print("noise floor: the e_max the sensor's noise alone reaches over the scored samples (its RMS, "
                   "estimated from the identification run, in --json as sensor_noise_um)")
