@@ -77,6 +77,28 @@ def cmd_identify(args: argparse.Namespace) -> int:
                 (a or 0) >= (b if b is not None else n) - 1):
             raise UsageError(f"{name} {a if a is not None else ''}:{b if b is not None else ''} is outside the "
                              f"file's {n} samples (or holds fewer than 2)")
+    vstart, vstop = args.validate
+    if (vstart is not None or vstop is not None) and start is None and stop is None:
+        # the hold-out is data the model was not fitted on: without --train, train on the rest of
+        # the record where the validated part is its end or its start (it trained on everything,
+        # the validated samples too, and reported their error as held out: found by fuzzing)
+        va, vb = vstart or 0, vstop if vstop is not None else n
+        if va >= 2 and vb < n:
+            raise UsageError(f"--validate {va}:{vb} lies inside the record; give --train with the samples to fit on "
+                             f"(outside {va}:{vb}), e.g. --train 0:{va}")
+        if va >= 2:
+            stop = va  # the part before the validated end
+        elif vb <= n - 2:
+            start = vb  # the part after the validated start
+        else:
+            raise UsageError(f"--validate {va}:{vb} leaves no sample of the record to fit on; validate on part of it "
+                             "(e.g. its last third) or on another file (--validate-data)")
+    elif vstart is not None or vstop is not None:
+        ta, tb = start or 0, stop if stop is not None else n
+        va, vb = vstart or 0, vstop if vstop is not None else n
+        if max(ta, va) < min(tb, vb):
+            raise UsageError(f"--train {ta}:{tb} and --validate {va}:{vb} share samples {max(ta, va)}:{min(tb, vb)}: "
+                             "a hold-out error is only one on samples the model was not fitted on")
     train = ds.slice(start, stop) if (start is not None or stop is not None) else ds
     if args.warmup and args.warmup > len(train) - 100:
         raise UsageError(f"--warmup {args.warmup} leaves fewer than 100 of the {len(train)} training samples to fit on")
@@ -90,7 +112,6 @@ def cmd_identify(args: argparse.Namespace) -> int:
                              f"to fit")
     # validation sets: (name, data simulated from its first sample, first sample scored)
     validation = []
-    vstart, vstop = args.validate
     if vstart is not None or vstop is not None:
         # simulate the record from its start, so the model carries its memory into the slice
         validation.append(("samples %s:%s" % (vstart or "", vstop or ""), ds.slice(None, vstop), vstart or 0))
@@ -261,7 +282,9 @@ def register(sub: Any, add: Any) -> None:
                    help="fit isolated gross glitches of the output as they are (default, with --method select: "
                    "one or two samples off their neighbours by more than 5 %% of the span are bridged, with a warning)")
     p.add_argument("--validate", type=sample_range, default=(None, None), metavar="START:STOP",
-                   help="choose on, and report the error on, these samples of the same file (simulated from its start)")
+                   help="choose on, and report the error on, these samples of the same file (simulated from its "
+                   "start); never shared with --train, and without it the record's other end is trained on "
+                   "(--validate 6000: trains on 0:6000)")
     p.add_argument("--validate-data", action="append", metavar="FILE",
                    help="choose on, and report the error on, another file (same columns; may repeat)")
     p.add_argument("-o", "--output", help="write the model here (JSON)")
