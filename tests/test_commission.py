@@ -235,6 +235,19 @@ def test_a_reference_beyond_the_stroke_is_said_to_be_the_ranges_error(rig_and_co
     assert out.info["safety"]["clipped"] > 0.05 * out.info["safety"]["commands_sent"]
 
 
+def test_track_checks_period_and_reach_before_it_runs(rig_and_controller):
+    # found by fuzzing: period=0 divided by zero in learning (ZeroDivisionError), a negative one
+    # made a negative array, and a reference 100 um beyond the 2.5 um stroke was reported as a loop
+    # gone unstable at its first sample
+    rig, ctl = rig_and_controller
+    r = ref(1.0, rig, cycles=3)
+    for bad in (0, np.int64(0), -5):
+        with pytest.raises(ValueError, match="period must be >= 1 sample"):
+            ctl.track(r, period=bad)
+    with pytest.raises(ValueError, match="beyond what the stage reached .* no controller can follow it"):
+        ctl.track(r + 100.0)
+
+
 class _SlewLimited:
     """A stage element behind an amplifier that slews by at most ``rate`` V/s."""
 

@@ -169,7 +169,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ._validation import FloatArray, as_count, as_scalar, as_signal
-from .control.tracking import LoopWatch, TrackingResult, UnstableLoopError, lead_in_after, lead_in_from_rest
+from .control.tracking import (LoopWatch, TrackingResult, UnstableLoopError, _check_period, lead_in_after,
+                               lead_in_from_rest)
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
@@ -816,6 +817,8 @@ class CommissionedController:
         the conditioning sweep over the whole range (module docstring, step 3).
         """
         r = as_signal("reference", reference, min_length=2)
+        period = _check_period(period, r.size)  # (learning divided by period=0 before the metrics saw it)
+        self._check_reachable(r)
         for name, flag in (("feedback", feedback), ("learning", learning), ("conditioning", conditioning)):
             if flag is not None and not isinstance(flag, (bool, np.bool_)):  # feedback="no" ran with feedback
                 raise TypeError(f"{name} must be True or False (or None for the default), got {flag!r}")
@@ -832,6 +835,29 @@ class CommissionedController:
         _warn_if_guarded(res, "track")
         res.info.update(self.noise_floor(res) or {})
         return res
+
+    #: How far beyond the identification run's output a reference may reach, in that output's span,
+    #: before :meth:`track` refuses it; less is run, and the run warns where the range clipped it
+    #: (``ClippingWarning``, with the figures).
+    REACH_MARGIN = 1.0
+
+    def _check_reachable(self, r: FloatArray) -> None:
+        """Refuse a reference beyond what the stage reached over its whole range in the
+        identification run by more than :data:`REACH_MARGIN` of that reach: no controller
+        follows it (a reference 100 um beyond a 2.5 um stroke was reported as a loop gone
+        unstable at its first sample; found by fuzzing)."""
+        y = np.asarray(self.identification.y, dtype=np.float64)
+        y = y[np.isfinite(y)]
+        if y.size < 2:
+            return
+        y_lo, y_hi = float(y.min()), float(y.max())
+        margin = self.REACH_MARGIN * (y_hi - y_lo)
+        a, b = float(r.min()), float(r.max())
+        if a < y_lo - margin or b > y_hi + margin:
+            u = self.identification.u
+            raise ValueError(f"the reference ({a:.4g} .. {b:.4g} um) is beyond what the stage reached over "
+                             f"{float(np.min(u)):g}..{float(np.max(u)):g} V in its identification run ({y_lo:.4g} .. "
+                             f"{y_hi:.4g} um); no controller can follow it: keep the reference within that reach")
 
     @cached_property
     def structural_mode(self) -> dict[str, float] | None:
