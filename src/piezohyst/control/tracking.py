@@ -386,6 +386,21 @@ def lead_in_after(feedforward: Any, model: Any, sweep: Any, y_to: float, limits:
     return lead_in(feedforward, float(ys[-1]), y_to, limits, dt, before=ys, min_seconds=rise_s)
 
 
+def _check_controllers(feedforward: Any, feedback: Any) -> None:
+    """A clear TypeError for what is not a feedforward (a compensator: ``reset`` and ``step``)
+    or a feedback controller (``reset``, ``step`` and ``dt``, as :class:`~piezohyst.PID`); a
+    model passed where its compensator belongs says so (an AttributeError on ``reset`` before)."""
+    if feedforward is not None and not (hasattr(feedforward, "reset") and hasattr(feedforward, "step")) and not (
+            hasattr(feedforward, "command") and not hasattr(feedforward, "compensator")):
+        hint = (" (that is a model: pass its feedforward, model.compensator(...))"
+                if hasattr(feedforward, "compensator") else "")
+        raise TypeError(f"feedforward must be a compensator with reset() and step(), such as "
+                        f"model.compensator(...), or None; got {type(feedforward).__name__}{hint}")
+    if feedback is not None and not all(hasattr(feedback, a) for a in ("reset", "step", "dt")):
+        raise TypeError(f"feedback must be a controller with reset(), step() and dt, such as "
+                        f"piezohyst.PID(kp, ki, kd, dt), or None; got {type(feedback).__name__}")
+
+
 def track(
     plant: Any, reference: Any, feedforward: _Stepper | None = None, feedback: Any = None, *,
     feedback_at: str = "reference", period: int | None = None, reset: bool = True,
@@ -437,6 +452,7 @@ def track(
     dt = check_plant(plant)
     if feedback_at not in ("reference", "command"):
         raise ValueError(f"feedback_at must be 'reference' or 'command', got {feedback_at!r}")
+    _check_controllers(feedforward, feedback)
     if plant_mode(plant) == "buffered":
         if feedback is not None:
             raise ValueError("this plant only plays tables (BufferedPlant): there is no per-sample loop to "
