@@ -238,3 +238,15 @@ def test_an_unbounded_bouc_wen_loop_is_refused_where_it_would_give_nan():
     good = ph.BoucWen(**{**pv.BOUC_WEN, "gamma": -0.05})  # skewed, bounded (beta = 0.072)
     u = ph.sinusoid(1.0, 2, 0.0, 100.0, 1e-3)
     assert np.isfinite(good.compensator(1e-3).command(good.predict(u, 1e-3))).all()
+
+
+def test_a_home_relative_path_is_the_home_folder(tmp_path, monkeypatch):
+    # found by fuzzing: save_model(m, "~/models/m.json") made a folder named "~" in the working
+    # directory and left the user's home without the file
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.chdir(tmp_path)
+    m = ph.PrandtlIshlinskii(np.array([0.0, 10.0]), np.array([0.02, 0.01]))
+    written = ph.save_model(m, "~/models/m.json")
+    assert written == tmp_path / "home" / "models" / "m.json" and written.exists()
+    assert not (tmp_path / "~").exists()
+    assert ph.load_model("~/models/m.json") == m

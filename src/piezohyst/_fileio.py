@@ -176,7 +176,7 @@ def check_output_file(path: str | os.PathLike[str], force: bool) -> Path:
     OutputError
         ``path`` is a folder, or its folder cannot be created or written.
     """
-    p = Path(path)
+    p = Path(path).expanduser()  # "~/models/m.json" from Python made a folder named "~" here
     if p.is_dir():
         raise OutputError(f"{p} is a folder; give a file name")
     if os.path.lexists(p) and not force:

@@ -81,6 +81,13 @@ def model_to_dict(model: Any, *, fit: Any = None, dataset: Any = None,
     except TypeError as exc:
         raise TypeError(f"cannot save a {type(model).__name__}: {exc}") from None
     _check_finite(model.to_dict(), f"cannot save the {kind} model: parameter")
+    # (a string or an array here raised AttributeError on .summary / .sha256: found by fuzzing)
+    if fit is not None and not callable(getattr(fit, "summary", None)):
+        raise TypeError(f"fit must be the FitResult the model came from (it has .summary()), or None; "
+                        f"got {type(fit).__name__}")
+    if dataset is not None and not all(hasattr(dataset, a) for a in ("sha256", "fs", "meta")):
+        raise TypeError(f"dataset must be the piezohyst Dataset the model was fitted on (load_dataset, "
+                        f"Dataset(t, u, y)), or None; got {type(dataset).__name__}")
     unit = model_units(model)
     if units:
         unit.update(units)
@@ -157,9 +164,24 @@ def save_model(model: Any, path: str | os.PathLike[str], *, fit: Any = None, dat
     dataset : Dataset, optional
         Its SHA-256 and source are stored, so the model says what it was identified on.
     """
+    check_model_file_name(path)
     doc = model_to_dict(model, fit=fit, dataset=dataset, units=units, extra=extra)
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
     return atomic_write_text(path, text, force=force)
+
+
+def check_model_file_name(path: str | os.PathLike[str]) -> None:
+    """Refuse a model file name whose ending says another format (:data:`NOT_JSON_SUFFIXES`):
+    it wrote JSON under the name ``m.mat``, which MATLAB then cannot open (found by fuzzing)."""
+    if Path(path).suffix.lower() in NOT_JSON_SUFFIXES:
+        raise ValueError(f"{path}: a model file is JSON; give it a .json name (for MATLAB, export the model "
+                         f"and its inverse as a .mat file: piezohyst export --to matlab, "
+                         f"piezohyst.export.export_matlab)")
+
+
+#: File name endings :func:`save_model` refuses: formats a model file is not (it is JSON).
+NOT_JSON_SUFFIXES = frozenset({".mat", ".npz", ".npy", ".csv", ".tsv", ".h5", ".hdf5", ".xlsx", ".xls", ".ods",
+                               ".parquet", ".pkl", ".pickle", ".c", ".h"})
 
 
 def schema_version(doc: Any, source: str, name: str = SCHEMA_NAME, newest: int = SCHEMA_VERSION) -> int:
@@ -345,7 +367,7 @@ def load_model_document(path: str | os.PathLike[str]) -> dict[str, Any]:
     file, larger than :data:`MAX_FILE_BYTES`, not UTF-8, not strict JSON (NaN and Infinity are
     not JSON), nested deeper than :data:`MAX_DEPTH`.
     """
-    p = Path(path)
+    p = Path(path).expanduser()
     try:
         st = p.stat()
         if stat.S_ISDIR(st.st_mode):
@@ -382,5 +404,5 @@ def load_model_document(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 def load_model(path: str | os.PathLike[str]) -> Any:
     """Load a model saved by :func:`save_model` (any kind, any schema version up to this one's)."""
-    p = Path(path)
+    p = Path(path).expanduser()
     return model_from_dict(load_model_document(p), source=str(p))

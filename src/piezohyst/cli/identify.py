@@ -47,6 +47,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
     import piezohyst as ph
     from .._fileio import check_output_file
+    from ..modelio import check_model_file_name
     from ..models.base import kind_class
 
     kind = args.model
@@ -57,6 +58,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
             raise UsageError(f"--model {args.model}: {exc}") from None
     if args.output:  # refuse before the fit, not after it
         check_output_file(args.output, args.force)
+        check_model_file_name(args.output)
     method = args.method or ("pso" if kind == "bouc-wen" else "lsq" if kind == "prandtl-ishlinskii" else "select")
     if method == "pso" and kind not in ("bouc-wen", "prandtl-ishlinskii"):
         raise UsageError(f"--method pso is for --model pi or bouc-wen (the paper's); {kind} is fitted by least squares")

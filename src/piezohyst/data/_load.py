@@ -51,7 +51,7 @@ def supported() -> str:
 def open_checked(path: Any) -> tuple[Path, bytes, int]:
     """(path, its first bytes, its size), or a DataError saying why the file cannot be read."""
     try:
-        p = Path(os.fspath(path))
+        p = Path(os.fspath(path)).expanduser()
     except TypeError:
         raise DataError(f"a data file is given by its path (a str or os.PathLike), got {type(path).__name__}") from None
     try:
