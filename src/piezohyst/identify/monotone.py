@@ -280,6 +280,12 @@ def range_warnings(u: FloatArray, y: FloatArray) -> list[str]:
     return out
 
 
+#: Below this correlation of output with input (in magnitude) the output is said not to follow
+#: the input at all (a wrong column, a sensor that does not see the stage, swings inside a dead
+#: zone), rather than to fall as it rises (the messages of ``fit_pi``, ``fit_model``, ``commission``).
+WEAK_CORRELATION = 0.3
+
+
 def rises_with_input(u: FloatArray, y: FloatArray) -> bool:
     """False when the output falls as the input rises (negative correlation, e.g. a sensor mounted
     the other way round): every model kind here has a rising loop."""

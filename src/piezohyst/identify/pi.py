@@ -30,6 +30,7 @@ from ..models.play import (GramStats, _gram_stats, default_chunk_rows, largest_l
                            pi_simulate_strict, play_outputs)
 from ..pso import pso_minimize, swarm_best_update, swarm_move
 from .lsq import bounded_lstsq_gram, bounded_lstsq_gram_many
+from .monotone import WEAK_CORRELATION
 from .linear import unreversed_thresholds
 from .result import FitResult, check_output_scale, unpack_data
 from .result import paired_signals as _pair
@@ -257,9 +258,17 @@ def fit_pi(
                          "the input can be identified")
     check_output_scale(us, ys)
     slope = float(np.ptp(ys) / np.ptp(us))
-    if np.corrcoef(us, ys)[0, 1] < 0:
+    corr = float(np.corrcoef(us, ys)[0, 1])
+    if not abs(corr) >= WEAK_CORRELATION:
+        # (an output of noise fitted "globally optimal" without a word, or was told to be negated,
+        # as its correlation came out at +0.002 or -0.002: found by fuzzing)
         raise ValueError(
-            "the output falls as the input rises (negative correlation): a P-I model with an "
+            f"the output hardly follows the input (correlation {corr:.2f}; input {float(np.min(us)):.4g} to "
+            f"{float(np.max(us)):.4g}, output span {float(np.ptp(ys)):.3g}): is y the stage's displacement (the "
+            "right column), does the sensor see the stage, does the input span more than its dead band?")
+    if corr < 0:
+        raise ValueError(
+            f"the output falls as the input rises (correlation {corr:.2f}): a P-I model with an "
             "invertible (increasing) loading curve cannot fit it; negate y first"
         )
     if margin is None:

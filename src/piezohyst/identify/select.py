@@ -90,7 +90,8 @@ from ..models.play import largest_loop_threshold, play_operator
 from ..models.rate import first_order_lag
 from .glitches import SPAN_SHARE as GLITCH_SPAN_SHARE
 from .glitches import bridge_glitches, find_glitches
-from .monotone import butterfly_hint, range_warnings, rises_with_input, rising_part, turn_indices
+from .monotone import (WEAK_CORRELATION, butterfly_hint, range_warnings, rises_with_input, rising_part,
+                       turn_indices)
 from .linear import (DEFAULT_MARGIN, FewOutputLevelsError, Prepared, Structure, fit_prepared, fit_structure, mean_slope,
                      prepare)
 from .result import FitResult, check_output_scale, paired_signals, unpack_data
@@ -105,9 +106,6 @@ HOLDOUT = 0.3
 HISTORY_LEG_S = 0.25
 HISTORY_LEG_SAMPLES = 200
 HISTORY_MIN_SHARE = 0.05
-#: Below this correlation of output with input (in magnitude) a falling output is said not to
-#: follow the input at all, rather than to fall as it rises (the message of ``fit_model``).
-WEAK_CORRELATION = 0.3
 #: Run the two P-I threshold rules' searches on two threads (:func:`_searches`), unless numba's
 #: parallel regions were set to one thread; False runs them one after the other, with the same
 #: result.
