@@ -63,6 +63,11 @@ def _references(args: argparse.Namespace, rig: Any) -> list[tuple[str, Any, Any]
                 for f in args.freq]
     t, ref = load_reference(args.reference, args.ref_col, args.t_col, args.fs)
     dt_ref = float((t[-1] - t[0]) / (t.size - 1))
+    if args.fs is not None and abs(dt_ref * args.fs - 1.0) > 1e-6:
+        # (a file with a time column was run at its own rate, --fs ignored: found by fuzzing)
+        raise UsageError(f"--fs {args.fs:g} Hz, but the time column of {args.reference} says {1.0 / dt_ref:.6g} Hz; "
+                         "--fs is the rate of a file without a time column (drop it: the file is resampled to the "
+                         "rig's rate)")
     if abs(dt_ref - rig.dt) > 1e-9 * rig.dt:
         t, ref = resample_reference(t, ref, 1.0 / rig.dt, periodic=False)
     return [(str(args.reference), ref, estimate_period(ref))]
@@ -106,6 +111,14 @@ def cmd_track(args: argparse.Namespace) -> int:
         check_writable(args.output, args.force)
     if args.reference is not None and args.freq_given:
         raise UsageError("give either --freq (sinusoids) or --reference (a trajectory file), not both")
+    shaping = [o for o, v in (("--cycles", args.cycles), ("--low", args.low), ("--high", args.high)) if v is not None]
+    if args.reference is not None and shaping:
+        # (they were ignored without a word: found by fuzzing)
+        raise UsageError(f"{', '.join(shaping)} shape{'s' if len(shaping) == 1 else ''} the sinusoids; --reference "
+                         "runs the file's trajectory as it is (drop them, or drop --reference)")
+    args.cycles = 4 if args.cycles is None else args.cycles
+    args.low = 0.25 if args.low is None else args.low
+    args.high = 2.25 if args.high is None else args.high
     if not args.low < args.high:
         raise UsageError(f"--low ({args.low:g} um) must be below --high ({args.high:g} um)")
     if args.cycles < 2:
@@ -221,9 +234,12 @@ def register(sub: Any, add: Any) -> None:
     p.add_argument("--fs", type=positive_float, default=None, help="sample rate (Hz) of --reference if it has no time column")
     p.add_argument("-o", "--output", default=None, help="write the runs (t, desired, measured, command) as CSV ('-': stdout)")
     p.add_argument("--force", action="store_true", help="overwrite the --output file")
-    p.add_argument("--cycles", type=positive_int, default=4, help="cycles per run, >= 2; the first is not scored (default 4)")
-    p.add_argument("--low", type=finite_float, default=0.25, help="lowest desired displacement, µm (default 0.25)")
-    p.add_argument("--high", type=finite_float, default=2.25, help="highest desired displacement, µm (default 2.25)")
+    p.add_argument("--cycles", type=positive_int, default=None,
+                   help="cycles per sinusoid, >= 2; the first is not scored (default 4)")
+    p.add_argument("--low", type=finite_float, default=None, help="lowest desired displacement of the sinusoids, µm "
+                   "(default 0.25)")
+    p.add_argument("--high", type=finite_float, default=None, help="highest desired displacement of the sinusoids, "
+                   "µm (default 2.25)")
     p.add_argument("--feedback", choices=("none", "pid"), default="none", help="add PID feedback (default none)")
     p.add_argument("--kp", type=nonnegative_float, default=0.0, help="PID proportional gain (µm/µm, >= 0)")
     p.add_argument("--ki", type=nonnegative_float, default=0.0, help="PID integral gain (1/s, >= 0)")
