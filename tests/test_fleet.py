@@ -293,6 +293,17 @@ def test_find_records_folders_globs_and_unique_names(tmp_path):
         find_records([])
 
 
+def test_a_link_to_a_missing_file_is_an_error_row_not_left_out(tmp_path):
+    # found by fuzzing: a folder's dangling link was left out of the batch without a word
+    ph.fleet.write_simulated_batch(tmp_path, 2, seed=0, fs=2000.0, cycles=4)
+    (tmp_path / "gone.csv").symlink_to(tmp_path / "nowhere" / "x.csv")
+    df = ph.fleet.identify_many(tmp_path, client="serial")
+    assert len(df) == 3
+    row = df[df["record"] == "gone"].iloc[0]
+    assert row["status"] == "error" and "gone.csv" in row["error"]
+    assert (df[df["record"] != "gone"]["status"] == "ok").all()
+
+
 def test_batch_statistics_median_mad_and_flags():
     gains = [1.0, 2.0, 3.0, 4.0, 100.0, 3.0]  # median 3, |x - 3| = 2,1,0,1,97,0 -> MAD 1 (hand-computed)
     df = pd.DataFrame({"record": list("abcdef"), "status": ["ok"] * 5 + ["error"],
