@@ -152,6 +152,10 @@ def make_inputs(root: Path) -> dict[str, str]:
     text("ref.csv", "t,x\n" + "\n".join(f"{a:.6g},{1 + np.sin(a):.6g}" for a in t[:200]) + "\n")
     # (a second fuzzing round: a reference below the stroke, a time column in microseconds read as s)
     text("ref_far.csv", "t,x\n" + "\n".join(f"{a:.6g},{-5 + 0.1 * np.sin(a):.6g}" for a in t[:200]) + "\n")
+    np.save(root / "ref_npy.npy", np.sin(t[:200]))
+    f["ref_npy"] = root / "ref_npy.npy"
+    ph.fleet.identify_many(root / "data.csv", kind="pi", client="serial", out=root / "fleet_done")
+    f["fleet_done"] = root / "fleet_done"
     text("ref_us.csv", "t,x\n" + "\n".join(f"{1e6 * a:.8g},{1 + np.sin(a):.6g}" for a in t[:200]) + "\n")
     text("nonuniform.csv", "t,u,y\n" + "\n".join(f"{a + (0.0004 if i == 300 else 0.0):.6g},{b:.9g},{c:.9g}"
                                                     for i, (a, b, c) in enumerate(zip(t, u, y))) + "\n")
@@ -363,8 +367,17 @@ CASES: list[Case] = [
       "{weights_numtext}"),
     C("compensate misspelt parameter", "compensate --model {param_typo} --reference {ref} -o {root}/c9.csv", "ofset"),
     C("compensate --fs absurd", "compensate --model {pi} --reference {ref} -o {root}/c10.csv --fs 1e300", "--fs"),
-    C("track --reference in microseconds", "track --model {pi} --reference {ref_us} --cycles 2", "--fs"),
-    C("track --reference beyond the stroke", "track --model {pi} --reference {ref_far} --cycles 2", "{ref_far}"),
+    C("track --reference in microseconds", "track --model {pi} --reference {ref_us}", "--fs"),
+    C("track --reference beyond the stroke", "track --model {pi} --reference {ref_far}", "{ref_far}"),
+    C("track --reference with --cycles", "track --model {pi} --reference {ref} --cycles 9", "--cycles"),
+    C("track --reference with --low --high", "track --model {pi} --reference {ref} --low 0 --high 0.1",
+      "--low, --high"),
+    C("track --reference with a --fs its time column contradicts", "track --model {pi} --reference {ref} --fs 50",
+      "--fs 50"),
+    C("compensate --reference as NumPy .npy", "compensate --model {pi} --reference {ref_npy} -o {root}/c11.csv "
+      "--fs 1000", "numpy.savetxt"),
+    C("fleet identify rerun with another model, --force named", "fleet identify {data} --model preisach --out {fleet_done}",
+      "or --force to refit"),
     C("export --kp negative", "export {pi} --to c --out {root}/x1 --kp -1", "--kp"),
     C("export --ki negative", "export {pi} --to c --out {root}/x2 --ki -5 --fs 1000", "--ki"),
     C("export --fb-delay huge", "export {pi} --to c --out {root}/x3 --fb-delay 1000000000", "--fb-delay"),

@@ -96,6 +96,10 @@ def _flags(parser: argparse.ArgumentParser, command: str | None) -> dict[str, st
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction) and command in action.choices:
             parsers.append(action.choices[command])
+    for p in parsers[1:]:  # a command's own subcommands ("fleet identify"): their options too
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                parsers.extend(action.choices.values())
     for p in parsers:
         for action in p._actions:
             longs = [o for o in action.option_strings if o.startswith("--")]

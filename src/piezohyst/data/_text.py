@@ -567,9 +567,10 @@ def read_table(path: str | Path, delimiter: str | None = None) -> tuple[list[str
     try:
         src = TextSource(p, head, size, delimiter=delimiter)
     except NotText as exc:
-        from ._load import supported
-
-        raise DataError(f"{p}: not a text table ({exc}); {supported()}") from None
+        # (it listed NumPy, MATLAB and HDF5 files as supported, which this reader is not: found by fuzzing)
+        raise DataError(f"{p}: not a text table ({exc}); a reference or command table is read from text: columns "
+                        "separated by commas, semicolons, tabs or spaces (from NumPy: numpy.savetxt(path, array, "
+                        "delimiter=','))") from None
     from ._columns import default_limit
 
     arr = src.read_all(default_limit())
