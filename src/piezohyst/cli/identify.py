@@ -68,6 +68,27 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if args.warmup and method != "select":
         raise UsageError(f"--warmup is for the structure search (--method select); --method {method} fits every "
                          "training sample (start the training part later with --train instead)")
+    # options that do not apply to this method are refused, as --warmup is (they were ignored
+    # without a word: found by fuzzing)
+    unused = []
+    if method != "select":
+        unused += [o for o, given in (("--history", args.history is not None),
+                                      ("--keep-glitches", args.keep_glitches)) if given]
+    if method == "lsq":
+        unused += [o for o, given in (("--seed", args.seed is not None), ("--iterations", args.iterations is not None),
+                                      ("--no-polish", args.no_polish)) if given]
+    if method == "pso" and kind == "prandtl-ishlinskii" and args.no_polish:
+        unused.append("--no-polish")
+    if kind == "bouc-wen" and args.n is not None:
+        unused.append("--n")
+    if unused:
+        raise UsageError(f"{', '.join(unused)} {'does' if len(unused) == 1 else 'do'} not apply to --model "
+                         f"{args.model} --method {method} (--history and --keep-glitches are the structure search's, "
+                         "--seed, --iterations and --no-polish the particle swarm's, --n the P-I and Preisach "
+                         "models'); drop " + ("it" if len(unused) == 1 else "them"))
+    args.seed = 0 if args.seed is None else args.seed
+    args.iterations = 200 if args.iterations is None else args.iterations
+    args.history = "auto" if args.history is None else args.history
     if kind == "bouc-wen" and method == "pso" and args.delay == "auto":
         raise UsageError("--delay auto is not available for --model bouc-wen with --method pso; give the delay in samples")
     ds = load_cli_dataset(args.data, args)
@@ -264,8 +285,8 @@ def register(sub: Any, add: Any) -> None:
                    "(bouc-wen default, or pi)")
     p.add_argument("--n", type=positive_int, default=None,
                    help="play operators (pi) or grid levels (preisach); default: chosen on held-out data (20 for --method lsq/pso)")
-    p.add_argument("--seed", type=seed, default=0, help="PSO seed (default 0)")
-    p.add_argument("--iterations", type=positive_int, default=200, help="PSO iterations (default 200)")
+    p.add_argument("--seed", type=seed, default=None, help="PSO seed (default 0)")
+    p.add_argument("--iterations", type=positive_int, default=None, help="PSO iterations (default 200)")
     p.add_argument("--no-polish", action="store_true", help="bouc-wen: PSO only, no local refinement")
     p.add_argument("--delay", type=_delay, default=None,
                    help="samples by which the output lags the input, or 'auto' (default: searched on held-out data "
@@ -275,7 +296,7 @@ def register(sub: Any, add: Any) -> None:
                    help="samples at the start of the training part that only set the model's state (e.g. a "
                    "conditioning sweep over the whole range): run through, neither fitted nor scored "
                    "(--method select; default 0)")
-    p.add_argument("--history", choices=("auto", "none"), default="auto",
+    p.add_argument("--history", choices=("auto", "none"), default=None,
                    help="the stage's state at the record's start: 'auto' (default, --method select) also fits the "
                    "chosen structure after a history down to the bottom of the record's input and back, and up to "
                    "its top and back (a stage at rest keeps the branch it came down or up on), and keeps one where "
