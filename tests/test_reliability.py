@@ -215,6 +215,8 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("fit_pi weight_bounds nan", lambda: ph.fit_pi(u, y, method="pso", weight_bounds=(nan, 1.0)),
          ("weight_bounds",)),
         ("fit_pi y beyond float", lambda: ph.fit_pi(u, y * 1e200), ("output per volt",)),
+        ("fit_model kind and kinds both", lambda: ph.fit_model(u, y, 1e-3, kind="pi", kinds=("preisach",)),
+         ("kinds", "kind='auto'")),
         ("fit_pi on an output of noise (correlation ~ +0)", lambda: ph.fit_pi(
             u, np.random.default_rng(1).standard_normal(u.size) + 0.002 * u), ("hardly follows",)),
         ("fit_pi on an output of noise (correlation ~ -0)", lambda: ph.fit_pi(

@@ -512,6 +512,10 @@ def fit_model(
     us, ys = paired_signals(u, y, 0)
     if history not in (None, "auto", "none"):
         raise ValueError(f"history must be 'auto' or 'none', got {history!r}")
+    if kind != "auto" and kinds is not None and kind_class(kind) is not AfterHistory:
+        # (kind="pi", kinds=("preisach",) fitted a P-I model, kinds ignored: found by fuzzing)
+        raise ValueError(f"kinds= chooses among kinds for kind='auto'; kind={kind!r} fits that kind alone: drop "
+                         f"kinds, or pass kind='auto'")
     if kind != "auto" and kind_class(kind) is AfterHistory:
         if warmup:
             raise ValueError("kind='after-history' fits the stage's start: not with a warmup, which sets the state")
