@@ -300,3 +300,13 @@ def test_a_record_beyond_the_row_budget_is_fitted_on_every_kth_row():
     assert pred.size == u.size
     assert thin.rmse == pytest.approx(float(np.sqrt(np.mean((y[2:] - pred[2:]) ** 2))), rel=1e-12)
     assert thin.rmse <= 1.1 * full.rmse
+
+
+def test_fit_pi_warns_when_the_input_sits_on_fewer_levels_than_operators():
+    # found by fuzzing: a square wave between 10 and 90 V fitted 20 weights "globally optimal"
+    # without a word (that model predicted a 0..100 V sinusoid to 6.7 % of span, against 0.6 %)
+    u = np.where(np.sin(np.linspace(0.0, 40.0, 4000)) > 0, 90.0, 10.0)
+    y = pv.pi_model().simulate(u) * 0.02 + 0.001 * np.random.default_rng(0).standard_normal(u.size)
+    assert any("takes only 2 values (10, 90 V)" in w for w in ph.fit_pi(u, y).warnings)
+    s = ph.sinusoid(1.0, 2, 0.0, 100.0, 1e-3)
+    assert not any("takes only" in w for w in ph.fit_pi(s, pv.pi_model().simulate(s) * 0.02).warnings)

@@ -347,6 +347,15 @@ def fit_pi(
                      f"{'their weights' if unreversed.size > 1 else 'its weight'}, and such a cycle may be predicted "
                      f"poorly. Identify on a record with a cycle over the whole range, or with fit_model, which "
                      f"spreads the thresholds over the loops a record holds")
+    levels = np.unique(us[: min(us.size, 1_000_000)])
+    if levels.size <= nr:
+        # (a square wave between 10 and 90 V fitted 20 weights "globally optimal" without a word, and
+        # predicted a 0..100 V sinusoid to 6.7 % of span against 0.6 % from a sinusoid: found by fuzzing)
+        notes.append(f"the input takes only {levels.size} value{'s' if levels.size > 1 else ''} "
+                     f"({', '.join(format(float(v), '.4g') for v in levels[:6])}{', ...' if levels.size > 6 else ''} V), "
+                     f"fewer than the {nr} operators: the loop between them is not observed, and the weights that "
+                     "shape it are a guess. Identify on a record that moves through the range (a sinusoid, "
+                     "commissioning_excitation)")
     return FitResult(model=model, rmse=rmse, method=method, n_samples=int(us.size),
                      time_s=time.perf_counter() - t0, nit=nit, nfev=nfev, history=history,
                      message=message, delay=int(delay), info=info, warnings=notes,
