@@ -163,3 +163,20 @@ def test_compensate_says_when_the_commands_leave_the_identified_range(tmp_path, 
         assert bool(warned) is said and ("beyond the 0 .. 50 V the model was identified on" in cap.err) is said, cap
         if said:
             assert "the command goes up to 9" in warned[0], warned
+
+
+def test_stdin_and_stdout_are_named_as_such_in_messages(tmp_path, monkeypatch, capsys):
+    # found by fuzzing: an empty stdin was "/tmp/piezohyst-.../stdin.csv: the file is empty", and
+    # -o - said it wrote to /tmp/piezohyst-.../stdout.csv, a file that was never there for the user
+    import io
+    import sys
+
+    model = str(_pi_model_file(tmp_path))
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(b"")))
+    assert main(["track", "--model", model, "--reference", "-"]) == 2
+    err = capsys.readouterr().err
+    assert "stdin: the file is empty" in err and "/stdin.csv" not in err
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(b"t,x\n0,1\n0.001,1.2\n0.002,1.3\n")))
+    assert main(["compensate", "--model", model, "--reference", "-", "-o", "-"]) == 0
+    err = capsys.readouterr().err
+    assert "to stdout" in err and "stdout.csv" not in err

@@ -32,7 +32,7 @@ import warnings
 from typing import Any, Callable, Sequence
 
 from . import benchmark, compensate, export, fleet, identify, models, reproduce, rig, track
-from ._common import (ArgumentParser, Terminated, UsageError, cli_spelling, is_deliberate, one_line,
+from ._common import (ArgumentParser, Terminated, UsageError, cli_spelling, is_deliberate, one_line, shown,
                       run_with_std_streams)
 
 #: The commands, in the order ``--help`` lists them.
@@ -200,7 +200,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         users = isinstance(exc, _user_errors()) or isinstance(exc, (OSError, MemoryError)) or (
             isinstance(exc, (ValueError, TypeError)) and is_deliberate(exc))
         if users:
-            msg = cli_spelling(_message(exc), _flags(parser, command) if parser is not None else {})
+            msg = shown(cli_spelling(_message(exc), _flags(parser, command) if parser is not None else {}))
             print(f"{prog}: error: {msg}", file=sys.stderr)
             return 2
         print(f"{prog}: internal error: {type(exc).__name__}: {_message(exc)[:300]} -- this is a bug in piezohyst, "

@@ -66,6 +66,21 @@ STDIN_ARGS = {"data": ".csv", "reference": ".csv", "model": ".json"}
 STDOUT_SUFFIX = {"identify": ".json", "compensate": ".csv", "track": ".csv"}
 
 
+#: The temporary files that stand for stdin and stdout in this run (path -> "stdin"/"stdout"):
+#: what messages show instead of the paths (:func:`shown`).
+STREAM_NAMES: dict[str, str] = {}
+
+
+def shown(text: object) -> str:
+    """``text`` with the temporary files of ``-`` (stdin, stdout) named as the streams they stand
+    for: an error about an empty stdin named /tmp/piezohyst-.../stdin.csv, and ``-o -`` said it
+    wrote to a file that did not exist (found by fuzzing)."""
+    out = str(text)
+    for path, name in STREAM_NAMES.items():
+        out = out.replace(path, name)
+    return out
+
+
 def run_with_std_streams(args: argparse.Namespace, run: Any) -> int:
     """Run a command with ``-`` for an input file (stdin) or for ``-o`` (stdout).
 
@@ -76,6 +91,7 @@ def run_with_std_streams(args: argparse.Namespace, run: Any) -> int:
     import tempfile
 
     global STDOUT_TAKEN
+    STREAM_NAMES.clear()
     ins = [a for a in STDIN_ARGS if getattr(args, a, None) == "-"]
     out_dash = getattr(args, "output", None) == "-"
     if not ins and not out_dash:
@@ -89,10 +105,12 @@ def run_with_std_streams(args: argparse.Namespace, run: Any) -> int:
             p = Path(tmp) / ("stdin" + STDIN_ARGS[ins[0]])
             p.write_bytes(sys.stdin.buffer.read())
             setattr(args, ins[0], str(p))
+            STREAM_NAMES[str(p)] = "stdin"
         target = None
         if out_dash:
             target = Path(tmp) / ("stdout" + STDOUT_SUFFIX.get(getattr(args, "command", ""), ".csv"))
             args.output = str(target)
+            STREAM_NAMES[str(target)] = "stdout"
             STDOUT_TAKEN = True
         try:
             code = int(run(args))

@@ -16,7 +16,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ._common import UsageError, amplifier_range, check_u_options, console, print_json
+from ._common import UsageError, amplifier_range, check_u_options, console, print_json, shown
 
 
 def compensator_for(model: Any, dt: float | None, **limits: Any) -> Any:
@@ -199,7 +199,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         print_json(res)
     else:
         msg = (f"wrote {u.size} commands ({u.min():.3f} .. {u.max():.3f} V"
-               + (f", {n_limited} clipped" if n_limited else "") + f", {1.0 / dt:g} Hz) to {out}")
+               + (f", {n_limited} clipped" if n_limited else "") + f", {1.0 / dt:g} Hz) to {shown(out)}")
         if periodic_info is not None:
             msg += (f"\nperiodic steady state after {periodic_info['cycles']} cycles"
                     + ("" if periodic_info["converged"] else " (NOT converged)")
@@ -216,7 +216,7 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
             "(offline feedforward: the wave table a controller plays).",
             "piezohyst compensate --model pi.json --reference ref.csv --periodic --fs 10000 -o table.h")
     p.add_argument("--model", required=True, help="model file from 'piezohyst identify'")
-    p.add_argument("--reference", required=True, help="desired displacement (µm): CSV/text with a t column or --fs")
+    p.add_argument("--reference", required=True, help="desired displacement (µm): CSV/text with a t column or --fs ('-': stdin)")
     p.add_argument("--ref-col", type=lambda v: int(v) if v.isdigit() else v, default=None, help="reference column")
     p.add_argument("--t-col", type=lambda v: int(v) if v.isdigit() else v, default=None, help="time column")
     p.add_argument("--fs", type=float, default=None,
@@ -225,7 +225,7 @@ def register(sub, add) -> None:  # type: ignore[no-untyped-def]
                         "at the rate it was identified at (another rate is refused)")
     p.add_argument("-o", "--output", required=True,
                    help="table to write, by extension: .csv/.txt (t_s,x_d_um,u_V), .npy (commands, V), "
-                        ".mat (MATLAB), .h (C array with its length and rate)")
+                        ".mat (MATLAB), .h (C array with its length and rate); '-': CSV to stdout")
     p.add_argument("--periodic", action="store_true",
                    help="the reference is one period of a looping table: write one cycle of the compensator's "
                         "periodic steady state (loops without a step)")

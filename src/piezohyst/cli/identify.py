@@ -7,7 +7,7 @@ import math
 from typing import Any
 
 from ._common import (UsageError, add_data_options, console, guarded, load_cli_dataset, nonnegative_int, positive_int,
-                      print_json, sample_range, seed)
+                      print_json, sample_range, seed, shown)
 
 #: --model choices: "auto" and every kind name and alias (from the registry, at parse time)
 _MODEL_HELP = ("model kind: auto (every kind, chosen on held-out data), pi (the paper's P-I), bouc-wen (the "
@@ -267,7 +267,7 @@ def _print_report(fit: Any, vrows: list[dict[str, Any]], out_path: str | None, d
     for w in fit.warnings:
         con.print(f"warning: {w}")
     if out_path:
-        con.print(f"model written to {out_path}")
+        con.print(f"model written to {shown(out_path)}")
 
 
 def register(sub: Any, add: Any) -> None:
@@ -310,6 +310,6 @@ def register(sub: Any, add: Any) -> None:
                    "(--validate 6000: trains on 0:6000)")
     p.add_argument("--validate-data", action="append", metavar="FILE",
                    help="choose on, and report the error on, another file (same columns; may repeat)")
-    p.add_argument("-o", "--output", help="write the model here (JSON)")
+    p.add_argument("-o", "--output", help="write the model here (JSON; '-': stdout)")
     p.add_argument("--force", action="store_true", help="overwrite the output file if it exists")
     p.add_argument("--json", action="store_true", help="print the results as JSON only")

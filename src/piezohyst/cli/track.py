@@ -9,7 +9,7 @@ import math
 from typing import Any
 
 from ._common import (UsageError, add_rig_options, check_sinusoids, console, finite_float, freqs, nonnegative_float,
-                      positive_float, positive_int, print_json, rig_from_args, rig_rate_note)
+                      positive_float, positive_int, print_json, rig_from_args, rig_rate_note, shown)
 from .compensate import compensator_for
 
 
@@ -209,7 +209,7 @@ def _print_track(args, rows, rig, extra=None) -> int:  # type: ignore[no-untyped
         con.print("noise floor: the e_max the sensor's noise alone reaches over the scored samples (its RMS, "
                   "estimated from the identification run, in --json as sensor_noise_um)")
     if extra and extra.get("written"):
-        con.print(f"wrote the runs to {extra['written']}")
+        con.print(f"wrote the runs to {shown(extra['written'])}")
     return 0
 
 
