@@ -658,6 +658,23 @@ def test_a_stage_that_does_not_follow_the_command_is_refused_as_such(noise_only,
     assert "amplifier on" in str(err.value) and "_AmplifierOff.step()" in str(err.value)
 
 
+class _StuckSensor:
+    dt = 1e-4
+    u_range = (0.0, 100.0)
+
+    def reset(self):
+        pass
+
+    def step(self, u):
+        return 3.0
+
+
+def test_a_stuck_sensor_is_said_to_give_a_constant_output():
+    # the message said "correlation nan" for a reading that never moves
+    with pytest.raises(ValueError, match=r"hardly follows the command .*\(a constant output over 0\.\.100 V"):
+        ph.commission(_StuckSensor())
+
+
 def test_track_flags_must_be_booleans(rig_and_controller):
     rig, ctl = rig_and_controller
     for name in ("feedback", "learning", "conditioning"):  # feedback="no" ran with feedback on

@@ -1727,8 +1727,9 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
                         f"saturates beyond?): commission(plant, u_range=({part[0]:.4g}, {part[1]:.4g})) identifies "
                         "it there")
             raise ValueError(
-                f"the plant's displacement hardly follows the command over the identification run (correlation "
-                f"{r_run:.2f} over {float(np.min(ds.u)):.4g}..{float(np.max(ds.u)):.4g} V; output span "
+                "the plant's displacement hardly follows the command over the identification run ("
+                + (f"correlation {r_run:.2f}" if math.isfinite(r_run) else "a constant output")
+                + f" over {float(np.min(ds.u)):.4g}..{float(np.max(ds.u)):.4g} V; output span "
                 f"{float(np.ptp(ds.y[warmup:])):.3g} um): is the amplifier on, the stage connected, and does "
                 f"{method} return this stage's sensor reading in um?" + (" " + hint[2:] if hint else ""))
         raise ValueError(

@@ -50,7 +50,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     from ..modelio import check_model_file_name
     from ..models.base import kind_class
 
-    kind = args.model
+    kind = "auto" if args.model.strip().lower() == "auto" else args.model  # as kinds are: AUTO, PI, Preisach
     if kind != "auto":
         try:
             kind = kind_class(kind).kind

@@ -508,6 +508,8 @@ def fit_model(
         winner's, ``info["search"]`` the ranges; ``warnings`` what deserves attention.
     """
     t0 = time.perf_counter()
+    if isinstance(kind, str) and kind.strip().lower() == "auto":  # spelt as kind names may be ("PI", "Preisach")
+        kind = "auto"
     u, y, dt = unpack_data(u, y, dt)
     us, ys = paired_signals(u, y, 0)
     if history not in (None, "auto", "none"):
