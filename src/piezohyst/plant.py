@@ -138,11 +138,20 @@ def check_plant(plant: Any) -> float:
 
 
 def plant_u_range(plant: Any, u_range: Any = None) -> tuple[float, float] | None:
-    """``u_range`` if given, else the plant's ``u_range`` attribute, checked; None if neither."""
+    """``u_range`` if given, else the plant's ``u_range`` attribute, checked; None if neither. A
+    ``u_range`` given must lie within the plant's own: that is its amplifier's range (a wider one
+    was sent to the plant as it was, -50..150 V to a 0..100 V plant: found by fuzzing)."""
     from .models.base import check_u_range
 
-    given = u_range if u_range is not None else getattr(plant, "u_range", None)
-    return check_u_range(given) if given is not None else None
+    own_given = getattr(plant, "u_range", None)
+    own = check_u_range(own_given) if own_given is not None else None
+    if u_range is None:
+        return own
+    rng = check_u_range(u_range)
+    if own is not None and rng is not None and (rng[0] < own[0] or rng[1] > own[1]):
+        raise ValueError(f"u_range={rng[0]:g}..{rng[1]:g} V goes beyond the plant's own u_range {own[0]:g}..{own[1]:g} V "
+                         f"(its amplifier's range): give one within it")
+    return rng
 
 
 def measured(y: Any) -> float:
