@@ -387,6 +387,8 @@ CASES: list[Case] = [
     C("export --kp negative", "export {pi} --to c --out {root}/x1 --kp -1", "--kp"),
     C("export --ki negative", "export {pi} --to c --out {root}/x2 --ki -5 --fs 1000", "--ki"),
     C("export --fb-delay huge", "export {pi} --to c --out {root}/x3 --fb-delay 1000000000", "--fb-delay"),
+    C("export matlab with C feedback gains", "export {pi} --to matlab --out {root}/mx1.mat --kp 1", "--kp"),
+    C("export matlab --out with another extension", "export {pi} --to matlab --out {root}/mx2.txt", "mx2.txt"),
     C("export --fs absurdly slow with --ki", "export {pi} --to c --out {root}/x4 --ki 1 --fs 1e-300", "diverge"),
     C("export --fs in kHz by mistake", "export {pi} --to c --out {root}/x5 --ki 2000 --fs 10", "sample rate"),
     C("benchmark --bounds-scale empty entry", "benchmark bouc-wen --bounds-scale 1,,2", "--bounds-scale"),

@@ -59,6 +59,7 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
     from piezohyst import paper_values as pv
     from piezohyst.control.tracking import tracking_metrics
     from piezohyst.export.c import export_c
+    from piezohyst.export.matlab import export_matlab
     from piezohyst.export.tables import resample_reference
     from piezohyst.modelio import model_from_dict
     from piezohyst.signals import estimate_period, time_vector
@@ -241,6 +242,14 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
             doc(parameters={**good["parameters"], "weights": [1e308] * len(good["parameters"]["weights"])})),
          ("weights[0]", "1e+308")),
         ("export_c kp negative", lambda: export_c(pi, tmp / "c_neg", kp=-1.0), ("kp",)),
+        ("export_matlab without u_range", lambda: export_matlab(pi, tmp / "m1.mat", u_range=None), ("u_range",)),
+        ("export_matlab to a .txt name", lambda: export_matlab(pi, tmp / "m2.txt", u_range=(0.0, 100.0)), (".mat",)),
+        ("export_matlab dt negative", lambda: export_matlab(pi, tmp / "m3.mat", u_range=(0.0, 100.0), dt=-1.0),
+         ("dt",)),
+        ("export_c fb_dt negative (positive feedback)", lambda: export_c(pi, tmp / "c_negdt", ki=50.0, fb_dt=-1e-3,
+                                                                         u_range=(0.0, 100.0)), ("fb_dt",)),
+        ("commission u_range beyond the plant's own", lambda: ph.commission(rig, u_range=(-50.0, 150.0)),
+         ("u_range", "plant's own")),
         ("export_c integral gain diverging at its sample period", lambda: export_c(pi, tmp / "c_div", u_range=(0.0, 100.0),
                                                                                    ki=1.0, fb_dt=1e300), ("diverge",)),
         ("open_loop beyond the plant's u_range", lambda: ph.open_loop(_Stepper(), [0.0, 1000.0, -500.0, 0.0]),

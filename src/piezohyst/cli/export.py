@@ -61,12 +61,18 @@ def cmd_export(args: argparse.Namespace) -> int:
     else:
         from ..export.matlab import export_matlab
 
+        fb = [o for o, given in (("--kp", args.kp), ("--ki", args.ki), ("--fb-delay", args.fb_delay)) if given]
+        if fb:  # (they were ignored without a word: found by fuzzing)
+            raise UsageError(f"{', '.join(fb)} set the C code's feedback (--to c); the MATLAB file holds the model, its "
+                             "inverse and a command table: drop them")
         out = Path(args.out)
         if out.suffix.lower() != ".mat":
+            if out.suffix and not out.is_dir():  # (mat/k4.txt became a folder holding k4.txt/pi.mat)
+                raise UsageError(f"{out}: give a .mat file name or a directory")
             if out.exists() and not out.is_dir():
                 raise UsageError(f"{out}: give a .mat file name or a directory")
             out = out / (model_path.stem + ".mat")
-        res = export_matlab(model, out, u_range=(lo, hi), dt=dt, force=args.force,
+        res = export_matlab(model, out, u_range=(lo, hi), dt=dt, force=args.force, max_slew=args.max_slew,
                             provenance={"producer": prov, "model_file": model_path.name, "model_sha256": sha})
     res["model_sha256"] = sha
     res["amplifier_range_V"], res["amplifier_range_from"] = [lo, hi], range_from

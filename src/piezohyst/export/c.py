@@ -36,6 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from .._validation import as_scalar
+
 _IDENT = re.compile(r"[^A-Za-z0-9_]")
 
 
@@ -233,6 +235,8 @@ def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, flo
             raise ValueError(f"{nm} must be finite, got {g!r}")
         if float(g) < 0.0:  # compensator_step_fb adds kp e + ki sum(e) dt, e = reference - measured
             raise ValueError(f"{nm} must be >= 0 (a negative gain is positive feedback), got {g!r}")
+    if fb_dt is not None:  # (a negative one compiled positive feedback: found by fuzzing)
+        fb_dt = as_scalar("fb_dt", fb_dt, positive=True)
     fdt = fb_dt if fb_dt is not None else dt
     if ki != 0.0 and fdt is None:
         raise ValueError("integral feedback needs the sample period: give fb_dt (or dt)")
@@ -270,6 +274,11 @@ extern "C" {{
         hdr += f"#define COMPENSATOR_U_MIN {c_number(rng[0])}\n#define COMPENSATOR_U_MAX {c_number(rng[1])}\n"
     if rate_bound and dt is not None:
         hdr += f"#define COMPENSATOR_DT_S {c_number(dt)}\n#define COMPENSATOR_RATE_HZ {c_number(1.0 / dt)}\n"
+    # (exported without a sample period, the integral's increment is ki * 0 * e: a ki set at run
+    # time did nothing, and the header did not say so: found by fuzzing)
+    gains_note = ("/* Feedback gains: kp in V per um, ki in V per (um s). */" if fdt is not None else
+                  "/* Feedback gains: kp in V per um, ki in V per (um s). Exported without a sample period\n"
+                  "   (piezohyst export --fs): the integral is compiled out, and a ki set here does nothing. */")
     hdr += f"""#define COMPENSATOR_FB_DELAY {int(fb_delay)}
 
 /* Back to the model's initial (de-energised) state; the feedback's integral to 0. */
@@ -284,7 +293,7 @@ double compensator_step(double desired_um);
    clipped command. */
 double compensator_step_fb(double desired_um, double measured_um);
 
-/* Feedback gains: kp in V per um, ki in V per (um s). */
+{gains_note}
 void compensator_set_gains(double kp, double ki);
 
 #ifdef __cplusplus

@@ -36,6 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from .._validation import as_scalar
+
 
 def _mat(obj: Any) -> Any:
     """Plain data MATLAB can hold: dicts become structs, None an empty array, lists arrays."""
@@ -56,22 +58,26 @@ def _mat(obj: Any) -> Any:
     return obj
 
 
-def reference_table(model: Any, u_range: tuple[float, float], dt: float | None) -> tuple[Any, Any, Any, float]:
+def reference_table(model: Any, u_range: tuple[float, float], dt: float | None, *,
+                    max_slew: float | None = None) -> tuple[Any, Any, Any, float]:
     """A reference over the model's range (its output for two 1 Hz full-range cycles of the
-    command) and the compensator's clipped command for it: (t, x_d, u, dt)."""
+    command) and the compensator's clipped (and, with ``max_slew``, rate-limited) command for it,
+    sampled every ``dt`` (default 1 ms for a rate-independent model): (t, x_d, u, dt)."""
     from ..signals import sinusoid
 
     lo, hi = u_range
     step = dt if dt is not None else 1e-3
     u0 = sinusoid(1.0, 2, lo, hi, step)
-    x_d = np.asarray(model.predict(u0, dt), dtype=np.float64)
-    comp = model.compensator(dt if model.dynamic else None, u_range=u_range)
+    own = dt if model.dynamic else None
+    x_d = np.asarray(model.predict(u0, own), dtype=np.float64)
+    comp = model.compensator(own, u_range=u_range, max_slew=max_slew)
     u = comp.command(x_d)
     return np.arange(x_d.size) * step, x_d, u, step
 
 
 def export_matlab(model: Any, path: Any, *, u_range: tuple[float, float], dt: float | None = None,
-                  provenance: dict[str, str] | None = None, force: bool = False) -> dict[str, Any]:
+                  provenance: dict[str, str] | None = None, force: bool = False,
+                  max_slew: float | None = None) -> dict[str, Any]:
     """Write the ``.mat`` file of the module docstring, atomically (not over an existing file
     without ``force``). Returns what was written."""
     from scipy.io import savemat
@@ -80,22 +86,33 @@ def export_matlab(model: Any, path: Any, *, u_range: tuple[float, float], dt: fl
     from ..modelio import model_units
     from ..models.base import check_u_range, kind_of
 
+    # (found by fuzzing: u_range=None was a bare AssertionError, dt=-1 or "x" was ignored, a .txt
+    # name got MATLAB bytes)
+    if u_range is None:
+        raise ValueError("u_range is required: the amplifier's (low, high) range in V, which the commands keep to")
     rng = check_u_range(u_range)
     assert rng is not None
+    if Path(path).suffix.lower() != ".mat":
+        raise ValueError(f"{path}: a MATLAB file's name ends in .mat")
+    if dt is not None:
+        dt = as_scalar("dt", dt, positive=True)
+    if max_slew is not None:
+        max_slew = as_scalar("max_slew", max_slew, positive=True)
     kind = kind_of(model)
     if model.dynamic and dt is None:
         dt = getattr(model, "dt", None)
         if dt is None:
             raise ValueError(f"the {kind} model has dynamics: give the sample period of the reference table "
                              "(dt; --fs on the command line)")
-    comp = model.compensator(dt if model.dynamic else None, u_range=rng)
-    t, x_d, u, step = reference_table(model, rng, dt if model.dynamic else None)
+    comp = model.compensator(dt if model.dynamic else None, u_range=rng, max_slew=max_slew)
+    t, x_d, u, step = reference_table(model, rng, dt, max_slew=max_slew)
     doc = {
         "model": {"kind": kind, "parameters": _mat(model.to_dict()), "units": _mat(model_units(model))},
         "inverse": _mat(comp.inverse_parameters() or {"role": "none"}),
         "reference": {"t_s": t.reshape(-1, 1), "x_d_um": x_d.reshape(-1, 1), "u_V": u.reshape(-1, 1)},
         "u_range_V": np.asarray(rng, dtype=np.float64).reshape(1, 2),
         "dt_s": float(step),
+        "max_slew_V_per_sample": float(max_slew) if max_slew is not None else 0.0,
     }
     for k, v in (provenance or {}).items():
         doc[k] = v
