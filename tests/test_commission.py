@@ -248,6 +248,19 @@ def test_track_checks_period_and_reach_before_it_runs(rig_and_controller):
         ctl.track(r + 100.0)
 
 
+def test_feedback_asked_of_an_untuned_controller_is_refused():
+    # found by fuzzing: feedback=True on a controller commissioned with tune=False ran without
+    # feedback and said nothing
+    rig = ph.VirtualRig(seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ph.ClippingWarning)
+        ctl = ph.commission(rig, tune=False)
+    r = ref(1.0, rig, cycles=2)
+    with pytest.raises(ValueError, match="never tuned .* ctl.tune"):
+        ctl.track(r, feedback=True)
+    assert ctl.track(r).info["feedback"] is False  # the default: feedback where there is one
+
+
 class _SlewLimited:
     """A stage element behind an amplifier that slews by at most ``rate`` V/s."""
 

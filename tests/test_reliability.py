@@ -60,6 +60,7 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
     from piezohyst.control.tracking import tracking_metrics
     from piezohyst.export.c import export_c
     from piezohyst.export.matlab import export_matlab
+    from piezohyst.control.tuning import SafeTuningOptions
     from piezohyst.export.tables import resample_reference
     from piezohyst.modelio import model_from_dict
     from piezohyst.signals import estimate_period, time_vector
@@ -226,6 +227,13 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("commission learning_gain negative", lambda: ph.commission(rig, learning_gain=-1.0), ("learning_gain",)),
         ("commission learning_gain 2", lambda: ph.commission(rig, learning_gain=2.0), ("learning_gain",)),
         ("commission max_plays 0", lambda: ph.commission(rig, max_plays=0), ("max_plays",)),
+        ("commission kinds empty", lambda: ph.commission(rig, kinds=()), ("kinds",)),
+        ("commission kinds unknown", lambda: ph.commission(rig, kinds=("banana",)), ("banana",)),
+        ("commission tuning a dict", lambda: ph.commission(rig, tuning={"repeats": 1}), ("tuning",)),
+        ("commission progress a string", lambda: ph.commission(rig, progress="yes"), ("progress",)),
+        ("commission tune a string", lambda: ph.commission(rig, tune="no"), ("tune",)),
+        ("commission seed a string", lambda: ph.commission(rig, seed="x"), ("seed",)),
+        ("SafeTuningOptions back_off inf", lambda: SafeTuningOptions(back_off=inf), ("back_off",)),
         ("commission n 0", lambda: ph.commission(rig, n=0), ("n must",)),
         ("simulate complex", lambda: pi.simulate(u + 1j), ("u",)),
         ("BoucWen unbounded compensator", lambda: ph.BoucWen(**{**pv.BOUC_WEN, "gamma": -1.0}).compensator(1e-3),

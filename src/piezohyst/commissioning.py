@@ -177,7 +177,7 @@ from .identify import FitResult, fit_model
 from .identify.select import MODE_SEARCH_TOP, WEAK_CORRELATION, structural_mode_search
 from .identify.monotone import (DEAD_BINS, DeadRange, DeadRangeWarning, MonotoneRange, NotMonotoneWarning, dead_range,
                                 monotone_range, rises_with_input, rising_part, butterfly_hint)
-from .models.base import Compensator, kind_of
+from .models.base import Compensator, kind_class, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
                     plant_u_range)
 from .signals import (estimate_period, mode_inverse, noise_e_max, second_order_filter,
@@ -823,6 +823,10 @@ class CommissionedController:
             if flag is not None and not isinstance(flag, (bool, np.bool_)):  # feedback="no" ran with feedback
                 raise TypeError(f"{name} must be True or False (or None for the default), got {flag!r}")
         cond = self.conditioning if conditioning is None else bool(conditioning)
+        if feedback and self.mode != "buffered" and self.tuning is None:
+            # (it ran without feedback and said nothing: found by fuzzing)
+            raise ValueError("feedback=True, but this controller's feedback was never tuned (commissioned with "
+                             "tune=False): call ctl.tune() first, or track with feedback=False")
         if self.mode == "buffered":
             if feedback:
                 raise ValueError(NO_LOOP.replace("no feedback: ", "cannot use feedback: "))
@@ -1654,6 +1658,28 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     """
     call = {k: v for k, v in locals().items() if k != "plant"}  # to commission again in a narrower range
     t0 = time.perf_counter()
+    # the options are checked before anything is sent to the plant (an unknown kind, a tuning
+    # given as a dict or a progress that cannot be called failed after the identification run,
+    # and tune="no" tuned: found by fuzzing)
+    for name, flag in (("tune", tune), ("conditioning", conditioning)):
+        if not isinstance(flag, (bool, np.bool_)):
+            raise TypeError(f"{name} must be True or False, got {flag!r}")
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a whole number >= 0, got {seed!r}")
+    if tuning is not None and not isinstance(tuning, SafeTuningOptions):
+        raise TypeError(f"tuning must be a SafeTuningOptions (piezohyst.control.tuning.SafeTuningOptions(...)), "
+                        f"got {type(tuning).__name__}")
+    if tuning is not None and not tune:
+        raise ValueError("tuning= sets the limits of the feedback's tuning, and tune=False skips it: drop one")
+    if progress is not None and not callable(progress):
+        raise TypeError(f"progress must be a function of one str (or None), got {type(progress).__name__}")
+    if isinstance(kinds, str):
+        kinds = [kinds]
+    kinds = list(kinds)
+    if not kinds:
+        raise ValueError("kinds is empty: name the model kinds to choose among (default: every kind commission uses)")
+    for k in kinds:
+        kind_class(k)  # an unknown kind is a ValueError naming the kinds
     # learning converges for 0 < gain < 2 where the model's inverse makes G ~ 1 (module
     # docstring, step 5); a gain outside that grows the error cycle by cycle
     learning_gain = as_scalar("learning_gain", learning_gain, positive=True)
@@ -1664,6 +1690,9 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     max_plays = as_count("max_plays", max_plays, minimum=1)
     dt = check_plant(plant)
     mode = plant_mode(plant)
+    if mode == "buffered" and tuning is not None:
+        raise ValueError("tuning= sets the limits of the integral feedback's tuning; this plant only plays tables "
+                         "(BufferedPlant), so there is no loop to tune: drop it")
     rng_u = plant_u_range(plant, u_range) or (0.0, 100.0)
     if max_step_fraction is None:
         max_step_fraction = default_step_fraction(dt)

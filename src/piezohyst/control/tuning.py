@@ -357,8 +357,12 @@ class SafeTuningOptions:
             raise ValueError("start_fraction must be > 0 and <= max_factor")
         if not self.gain_step > 1 or not self.back_off >= 1 or not self.overshoot_limit > 0:
             raise ValueError("gain_step must be > 1, back_off >= 1 and overshoot_limit > 0")
-        if not (isinstance(self.repeats, int) and self.repeats >= 1):
+        if isinstance(self.repeats, bool) or not (isinstance(self.repeats, int) and self.repeats >= 1):
             raise ValueError(f"repeats must be a positive integer, got {self.repeats!r}")
+        for name in ("phase_margin_deg", "gain_margin", "probe_fraction", "start_fraction", "gain_step",
+                     "max_factor", "overshoot_limit", "back_off"):
+            if not math.isfinite(getattr(self, name)):  # (back_off=inf tuned ki to 0 without a word)
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
 
 
 #: An oscillation grows under the feedback (:func:`tune_integral_safely`, step 2) when, in a trial,
