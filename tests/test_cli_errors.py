@@ -148,6 +148,9 @@ def make_inputs(root: Path) -> dict[str, str]:
     text("rs_bits.json", '{"adc_bits": 1.5}')
     text("rs_binary.json", b"\xff\xfe\x00garbage")
     text("rs_dt.json", '{"dt": 1e-12}')
+    text("rs_text.json", '{"u_min": "0"}')
+    text("rs_range3.json", '{"sensor_range_um": [0, 4, 5]}')
+    text("rs_bool.json", '{"adc_bits": true}')
     # reference for compensate
     text("ref.csv", "t,x\n" + "\n".join(f"{a:.6g},{1 + np.sin(a):.6g}" for a in t[:200]) + "\n")
     # (a second fuzzing round: a reference below the stroke, a time column in microseconds read as s)
@@ -387,6 +390,11 @@ CASES: list[Case] = [
     C("export --kp negative", "export {pi} --to c --out {root}/x1 --kp -1", "--kp"),
     C("export --ki negative", "export {pi} --to c --out {root}/x2 --ki -5 --fs 1000", "--ki"),
     C("export --fb-delay huge", "export {pi} --to c --out {root}/x3 --fb-delay 1000000000", "--fb-delay"),
+    C("rig settings: a number as text", "rig --freq 1 --cycles 1 --rig-settings {rs_text}", "u_min"),
+    C("rig settings: a range of three", "rig --freq 1 --cycles 1 --rig-settings {rs_range3}", "sensor_range_um"),
+    C("rig settings: adc_bits true", "rig --freq 1 --cycles 1 --rig-settings {rs_bool}", "adc_bits"),
+    C("rig --format without --out", "rig --freq 1 --cycles 1 --format pdf", "--out"),
+    C("rig --rig-gamma making an unbounded loop", "rig --freq 1 --cycles 1 --rig-gamma -0.5", "beta + gamma"),
     C("export matlab with C feedback gains", "export {pi} --to matlab --out {root}/mx1.mat --kp 1", "--kp"),
     C("export matlab --out with another extension", "export {pi} --to matlab --out {root}/mx2.txt", "mx2.txt"),
     C("export --fs absurdly slow with --ki", "export {pi} --to c --out {root}/x4 --ki 1 --fs 1e-300", "diverge"),

@@ -259,6 +259,8 @@ def test_feedback_asked_of_an_untuned_controller_is_refused():
     with pytest.raises(ValueError, match="never tuned .* ctl.tune"):
         ctl.track(r, feedback=True)
     assert ctl.track(r).info["feedback"] is False  # the default: feedback where there is one
+    with pytest.raises(TypeError, match="TrackingResult"):  # (an AttributeError on .metrics before)
+        ctl.noise_floor(None)
 
 
 class _SlewLimited:

@@ -233,6 +233,10 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("commission progress a string", lambda: ph.commission(rig, progress="yes"), ("progress",)),
         ("commission tune a string", lambda: ph.commission(rig, tune="no"), ("tune",)),
         ("commission seed a string", lambda: ph.commission(rig, seed="x"), ("seed",)),
+        ("AfterHistory waypoints as a string", lambda: ph.AfterHistory(pi, "0100", 10), ("waypoints",)),
+        ("BoucWen compensator dt negative", lambda: pv.bouc_wen_model().compensator(dt=-1.0), ("dt",)),
+        ("RateDependent lead gain without an input lag", lambda: ph.models.RateDependent(
+            pi, [0.01], [0.1], 1e-3, input_lead_gain=5.0), ("input_lead_gain", "input_tau")),
         ("SafeTuningOptions back_off inf", lambda: SafeTuningOptions(back_off=inf), ("back_off",)),
         ("commission n 0", lambda: ph.commission(rig, n=0), ("n must",)),
         ("simulate complex", lambda: pi.simulate(u + 1j), ("u",)),

@@ -650,6 +650,8 @@ class CommissionedController:
         and, over the run's scored samples, the e_max that noise reaches with probability one half
         (:func:`~piezohyst.signals.noise_e_max`) in µm and as % of the reference's span. An e_max
         near it is as small as this sensor can show; below it, the error is noise."""
+        if not isinstance(result, TrackingResult):
+            raise TypeError(f"noise_floor takes the TrackingResult of a track() run, got {type(result).__name__}")
         sigma = self.sensor_noise_um
         if sigma is None or result.metrics.samples < 1:
             return None

@@ -93,8 +93,25 @@ class RigSettings:
             as_scalar(name, getattr(self, name), positive=True)
         for name in ("b", "amp_tau", "noise_rms_um", "creep_scale"):
             as_scalar(name, getattr(self, name), nonnegative=True)
-        for name in ("alpha", "beta", "gamma", "sensor_gain"):
+        for name in ("alpha", "beta", "gamma", "sensor_gain", "u_min", "u_max"):
             as_scalar(name, getattr(self, name))
+        # (found by fuzzing: settings of the wrong type failed with Python's own words, "'<=' not
+        # supported between ...", "too many values to unpack"; adc_bits=true was a 1-bit converter)
+        for name in ("kv_tau", "kv_gain", "sensor_range_um"):
+            v = getattr(self, name)
+            if isinstance(v, (str, bytes)) or not isinstance(v, (tuple, list)):
+                raise ValueError(f"{name} must be a list of numbers, got {v!r}")
+            for i, x in enumerate(v):
+                as_scalar(f"{name}[{i}]", x)
+        if len(self.sensor_range_um) != 2:
+            raise ValueError(f"sensor_range_um must be (low, high), got {list(self.sensor_range_um)}")
+        for name in ("adc_bits", "delay_samples"):
+            if isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be an integer, got {getattr(self, name)!r}")
+        if not self.beta + self.gamma > 0:
+            # (gamma=-0.5 made a loop that grows without bound and pinned the sensor at its ends,
+            # without a word; the Bouc-Wen model refuses such parameters as well)
+            raise ValueError(f"beta + gamma must be > 0 for a bounded loop, got beta={self.beta:g}, gamma={self.gamma:g}")
         if self.u_max <= self.u_min:
             raise ValueError(f"u_max must be greater than u_min, got {self.u_min}..{self.u_max}")
         if len(self.kv_tau) != len(self.kv_gain):

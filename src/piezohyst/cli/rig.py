@@ -21,6 +21,8 @@ def cmd_rig(args: argparse.Namespace) -> int:
     if not args.u_low < args.u_high:
         raise UsageError(f"--u-low ({args.u_low:g} V) must be below --u-high ({args.u_high:g} V)")
     out = Path(args.out) if args.out else None
+    if out is None and tuple(args.format) != ("png",):  # (ignored without a word: found by fuzzing)
+        raise UsageError("--format chooses the formats of the figures --out writes: give --out DIR")
     fmts = tuple(dict.fromkeys(("png", *args.format)))
     fig_files = [RIG_FILES[0].rsplit(".", 1)[0] + "." + f for f in fmts]
     folder = OutputFolder(out, (*fig_files, RIG_FILES[1]), force=args.force) if out is not None else None

@@ -698,6 +698,8 @@ class BoucWen:
         Refused where the loop is unbounded (``beta + gamma <= 0``: :meth:`check_bounded`)."""
         from .bouc_wen_inverse import BoucWenFeedforward
 
+        if dt is not None:  # unused, but checked as every kind checks it (dt=-1 passed: found by fuzzing)
+            as_scalar("dt", dt, positive=True)
         self.check_bounded()
         return BoucWenFeedforward(self, u_range=u_range, max_slew=max_slew)
 

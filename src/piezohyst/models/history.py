@@ -76,6 +76,8 @@ class AfterHistory:
             raise TypeError(f"model must be a kind with output in um, got {type(self.model).__name__}")
         if isinstance(self.model, AfterHistory):
             raise TypeError("model is already after a history: give one history (its waypoints joined)")
+        if isinstance(self.waypoints, (str, bytes, dict)):  # ("0100" became 0, 1, 0, 0 V: found by fuzzing)
+            raise ValueError(f"waypoints must be a sequence of numbers (V), got {self.waypoints!r}")
         try:
             pts = tuple(float(v) for v in self.waypoints)
         except (TypeError, ValueError):  # not numbers, or not a sequence (None)

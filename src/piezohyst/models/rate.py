@@ -248,6 +248,9 @@ class RateDependent:
             raise ValueError(f"input_tau of {self.input_tau:g} s is too long to resolve at dt = {float(self.dt):g} s "
                              "(the lag would never move)")
         object.__setattr__(self, "input_lead_gain", as_scalar("input_lead_gain", self.input_lead_gain, nonnegative=True))
+        if self.input_lead_gain > 0.0 and self.input_tau == 0.0:  # (stored, and had no effect: found by fuzzing)
+            raise ValueError("input_lead_gain limits the lead that inverts an input lag; with input_tau = 0 there is "
+                             "none: give input_tau, or leave input_lead_gain at 0")
         object.__setattr__(self, "_a", frozen(np.exp(-dt / taus)))
 
     # -- figures ---------------------------------------------------------------------------------
