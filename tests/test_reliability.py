@@ -233,6 +233,9 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("commission progress a string", lambda: ph.commission(rig, progress="yes"), ("progress",)),
         ("commission tune a string", lambda: ph.commission(rig, tune="no"), ("tune",)),
         ("commission seed a string", lambda: ph.commission(rig, seed="x"), ("seed",)),
+        ("PrandtlIshlinskii.from_dict missing thresholds", lambda: ph.PrandtlIshlinskii.from_dict({"weights": [1.0]}),
+         ("thresholds", "missing")),
+        ("PrandtlIshlinskii.from_dict None", lambda: ph.PrandtlIshlinskii.from_dict(None), ("dict",)),
         ("AfterHistory waypoints as a string", lambda: ph.AfterHistory(pi, "0100", 10), ("waypoints",)),
         ("BoucWen compensator dt negative", lambda: pv.bouc_wen_model().compensator(dt=-1.0), ("dt",)),
         ("RateDependent lead gain without an input lag", lambda: ph.models.RateDependent(

@@ -81,6 +81,27 @@ _KINDS: dict[str, type] = {}
 _ALIASES: dict[str, str] = {}
 
 
+def _checked_from_dict(fn: Callable[..., Any], name: str) -> Any:
+    """``from_dict`` with its parameters checked to be a mapping and a missing one named: called on
+    the class directly, a missing name was a bare ``KeyError: 'thresholds'`` and ``None`` "'NoneType'
+    object is not subscriptable" (found by fuzzing; model files said it already)."""
+    import functools
+    from collections.abc import Mapping
+
+    @functools.wraps(fn)
+    def from_dict(cls: Any, params: Any) -> Any:
+        if not isinstance(params, Mapping):
+            raise TypeError(f"the parameters of a {name} model are a dict (what to_dict() returns), got "
+                            f"{type(params).__name__}")
+        try:
+            return fn(cls, params)
+        except KeyError as exc:
+            raise ValueError(f"parameter {exc} is missing for a {name} model") from None
+
+    from_dict._checked = True  # type: ignore[attr-defined]
+    return classmethod(from_dict)
+
+
 def register_kind(name: str, *aliases: str) -> Callable[[type[T]], type[T]]:
     """Class decorator: register a model kind under ``name`` (and ``aliases``)."""
 
@@ -88,6 +109,9 @@ def register_kind(name: str, *aliases: str) -> Callable[[type[T]], type[T]]:
         if name in _KINDS and _KINDS[name] is not cls:
             raise ValueError(f"model kind {name!r} is registered twice")
         cls.kind = name  # type: ignore[attr-defined]
+        own = cls.__dict__.get("from_dict")
+        if isinstance(own, classmethod) and not getattr(own.__func__, "_checked", False):
+            cls.from_dict = _checked_from_dict(own.__func__, name)  # type: ignore[attr-defined]
         if not hasattr(cls, "_repr_html_"):  # every kind shows as a table in Jupyter
             from .._html import model_html
 
