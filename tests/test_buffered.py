@@ -185,3 +185,18 @@ def test_table_stage_learning_tracks_to_one_percent(table_stage):
     with pytest.raises(ValueError, match="cannot use feedback"):
         ctl.track(r, feedback=True)
     assert math.isfinite(ctl.info["held_command"])
+
+
+def test_a_sensor_that_stops_reading_after_commissioning_is_said_to_have_stopped():
+    # found by fuzzing: a buffered stage whose sensor read 0 on every play after commissioning was
+    # tracked to 116 % e_max, learning drove the commands up against it, and the warning blamed the
+    # amplifier's range
+    import warnings
+
+    rig = TablesOnly(ph.VirtualRig(seed=0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ph.ClippingWarning)
+        ctl = ph.commission(rig)
+    rig.play = lambda u: np.zeros(np.asarray(u).size)  # the sensor reads 0 from now on
+    with pytest.raises(ValueError, match="did not move over this play .* sensor reading"):
+        ctl.track(ph.sinusoid(5.0, 3, 0.3, 2.2, rig.dt))

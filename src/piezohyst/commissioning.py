@@ -1158,6 +1158,12 @@ class CommissionedController:
             table = guard.guard_table(np.concatenate([pre, cmd]))
             y_all = self._bridge_glitches(self._play(table), guard)
             self.info["held_command"] = guard.last
+            if float(np.ptp(table)) > 0.0 and not float(np.ptp(y_all)) > 0.0:
+                # a sensor that reads one value whatever the command: learning drove the commands to
+                # the range's end against it, and the warning blamed the range (found by fuzzing)
+                raise ValueError(f"the stage's output did not move over this play (it read {float(y_all[0]):.6g} um "
+                                 f"throughout while the command went {float(np.min(table)):.4g}..{float(np.max(table)):.4g} "
+                                 f"V): is the sensor reading and the amplifier on? Nothing was learnt from it")
             y = y_all[pre.size + lead:]
             e = r - y
             rms = float(np.sqrt(np.mean(e[window] ** 2)))
