@@ -212,3 +212,16 @@ def test_a_lead_in_stops_doubling_when_that_no_longer_smooths_it():
     assert desired.size < 10_000, desired.size  # 6.6 million before
     desired, cmd = lead_in(_JumpAtStart(0.0), 1.0, 9.0, limits, dt)  # 80 V up: at least 160 samples
     assert np.abs(np.diff(cmd)).max() <= 0.5 and desired.size >= 160
+
+
+def test_pid_settings_changed_after_construction_take_effect():
+    # found by fuzzing: kd set to 0 after construction kept its derivative (the coefficients were
+    # computed once), while settings() showed the new kd
+    p = ph.PID(1.0, 0.0, 3.0, 1e-3)
+    p.kd = 0.0
+    assert p.step(0.0) == 0.0 and p.step(1.0) == 1.0 and p.settings()["kd"] == 0.0
+    q = ph.PID(0.0, 0.0, 1.0, 1e-3, tf=1e-3, u_min=None)  # None: no limit
+    q.tf = 3e-3
+    q.step(0.0)
+    assert q.step(1.0) == pytest.approx(1.0 / (3e-3 + 1e-3))
+    assert q.u_min == -np.inf

@@ -12,6 +12,9 @@ output is in volts and is added to the command.
 from __future__ import annotations
 
 import math
+from typing import Any
+
+import numpy as np
 
 from .._validation import as_scalar
 
@@ -38,20 +41,53 @@ class PID:
         Output limits.
     """
 
+    #: Settings checked whenever they are set, in the constructor or after it (kd changed after
+    #: construction kept its old derivative coefficients, while settings() showed the new one;
+    #: limits given as strings were compared as text: found by fuzzing).
+    _CHECKED = {"kp": {}, "ki": {}, "kd": {}, "dt": {"positive": True}, "tf": {"positive": True}}
+    kp: float
+    ki: float
+    kd: float
+    dt: float
+    tf: float
+    u_min: float
+    u_max: float
+
     def __init__(self, kp: float = 0.0, ki: float = 0.0, kd: float = 0.0, dt: float = 1e-4, *,
-                 tf: float | None = None, u_min: float = -math.inf, u_max: float = math.inf):
-        self.kp = as_scalar("kp", kp)
-        self.ki = as_scalar("ki", ki)
-        self.kd = as_scalar("kd", kd)
-        self.dt = as_scalar("dt", dt, positive=True)
-        self.tf = as_scalar("tf", tf, positive=True) if tf is not None else 2.0 * self.dt
-        if not (u_min < u_max):
-            raise ValueError(f"u_min must be less than u_max, got {u_min} and {u_max}")
-        self.u_min = float(u_min)
-        self.u_max = float(u_max)
-        self._a = self.tf / (self.tf + self.dt)
-        self._b = self.kd / (self.tf + self.dt)
+                 tf: float | None = None, u_min: float | None = -math.inf, u_max: float | None = math.inf):
+        self.kp = kp
+        self.ki = ki
+        self.kd = kd
+        self.dt = dt
+        self.tf = tf if tf is not None else 2.0 * self.dt
+        self.u_min = u_min  # type: ignore[assignment]  # (None: no limit; __setattr__ makes it a float)
+        self.u_max = u_max  # type: ignore[assignment]
+        if not (self.u_min < self.u_max):
+            raise ValueError(f"u_min must be less than u_max, got {self.u_min:g} and {self.u_max:g}")
         self.reset()
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in PID._CHECKED:
+            value = as_scalar(name, value, **PID._CHECKED[name])  # type: ignore[arg-type]
+        elif name in ("u_min", "u_max"):  # None: no limit; +-inf allowed, NaN not
+            if value is None:
+                value = -math.inf if name == "u_min" else math.inf
+            elif isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                    or math.isnan(value):
+                raise TypeError(f"{name} must be a number (or None for no limit), got {value!r}")
+            else:
+                value = float(value)
+        object.__setattr__(self, name, value)
+
+    @property
+    def _a(self) -> float:
+        """The derivative filter's pole, from the present ``tf`` and ``dt``."""
+        return self.tf / (self.tf + self.dt)
+
+    @property
+    def _b(self) -> float:
+        """The derivative filter's gain, from the present ``kd``, ``tf`` and ``dt``."""
+        return self.kd / (self.tf + self.dt)
 
     def reset(self) -> None:
         """Clear the integral, the derivative filter and the previous error."""
