@@ -450,7 +450,9 @@ def test_a_terabyte_file_is_refused_before_reading_it(tmp_path):
 def test_a_resampled_gap_is_also_size_checked(tmp_path):
     p = tmp_path / "gap.csv"
     ph.save_dataset(p, ph.Dataset(np.r_[0.0, 1e-3, 2e-3, 1e6], [0.0, 1, 2, 3], [0.0, 1, 2, 3]))
-    with pytest.raises(DataError, match=r"resampling to 1000000001 samples needs about"):
+    # refused before anything is allocated: once by the size check ("resampling to 1000000001
+    # samples needs about ..."), now already as a pause no resampling should bridge
+    with pytest.raises(DataError, match=r"gap of 1e\+06 s .* resampling would invent"):
         ph.load_dataset(p, resample=True, max_memory="1G")
 
 
@@ -665,3 +667,19 @@ def test_large_file_with_one_spare_column_reads_the_same(tmp_path, spare):
     np.testing.assert_array_equal(ds.u, u)
     np.testing.assert_array_equal(ds.y, y)
     np.testing.assert_allclose(ds.t, t, rtol=0, atol=1e-12)
+
+
+def test_resampling_refuses_to_bridge_a_pause_in_the_recording(tmp_path):
+    # found by fuzzing: a 60 s pause in a 4 s record became 60,000 interpolated samples, and
+    # identify scored its hold-out on that invented ramp
+    t = np.arange(4000) * 1e-3
+    t[2000:] += 60.0
+    u = np.sin(np.arange(4000) * 0.01)
+    p = tmp_path / "gap.csv"
+    np.savetxt(p, np.column_stack([t, u, 0.5 * u]), delimiter=",", header="t,u,y", comments="")
+    with pytest.raises(ph.DataError, match=r"gap of 60\.\d* s .* split the file"):
+        ph.load_dataset(p, resample=True)
+    t2 = np.arange(4000) * 1e-3
+    t2[2000:] += 3e-3  # a few missed samples: resampled as before
+    np.savetxt(p, np.column_stack([t2, u, 0.5 * u]), delimiter=",", header="t,u,y", comments="")
+    assert ph.load_dataset(p, resample=True).meta["resampled"]["samples_after"] == 4003

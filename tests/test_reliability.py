@@ -70,6 +70,7 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
     pi = pv.pi_model()
     ff = ph.InversePIFeedforward(pi)
     u = ph.sinusoid(1.0, 2, 0.0, 100.0, 1e-3)
+    u_t = np.arange(u.size) * 1e-3
     y = pi.simulate(u) * 0.02
     from piezohyst.modelio import model_to_dict
 
@@ -240,6 +241,10 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("BoucWen compensator dt negative", lambda: pv.bouc_wen_model().compensator(dt=-1.0), ("dt",)),
         ("RateDependent lead gain without an input lag", lambda: ph.models.RateDependent(
             pi, [0.01], [0.1], 1e-3, input_lead_gain=5.0), ("input_lead_gain", "input_tau")),
+        ("PID u_min as text", lambda: ph.PID(1.0, 0.0, 0.0, 1e-3, u_min="5", u_max="10"), ("u_min",)),
+        ("PID dt set negative after construction", lambda: setattr(ph.PID(1.0, 0.0, 0.0, 1e-3), "dt", -1.0), ("dt",)),
+        ("save_dataset to a .mat name", lambda: ph.save_dataset(tmp / "s.mat", ph.Dataset(u_t, u, y)), ("s.mat",)),
+        ("FitOptions resample 'no'", lambda: ph.fleet.FitOptions(resample="no"), ("resample",)),
         ("SafeTuningOptions back_off inf", lambda: SafeTuningOptions(back_off=inf), ("back_off",)),
         ("commission n 0", lambda: ph.commission(rig, n=0), ("n must",)),
         ("simulate complex", lambda: pi.simulate(u + 1j), ("u",)),

@@ -40,6 +40,9 @@ FLAGS = {"t": ("t_col=", "--t-col"), "u": ("u_col=", "--u-col"), "y": ("y_col=",
          "r": ("ref_col=", "--ref-col")}
 #: a time step further than this from the median step makes the time column non-uniform
 UNIFORM_TOLERANCE = 0.01
+#: The longest step (in median steps) resampling bridges: a longer one is a pause in the recording,
+#: and interpolating across it would invent data.
+MAX_RESAMPLED_GAP = 10.0
 
 Key = Hashable
 
@@ -347,6 +350,14 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
                     f"{src.locate(keys['t'], j + 1)} is {steps[j]:.6g} s against a median step of {med:.6g} s "
                     f"({100 * rel:.3g} % off; {100 * UNIFORM_TOLERANCE:g} % allowed); resample it onto a "
                     f"uniform grid (resample=True in Python, --resample at the command line) or fix the file")
+            gap = int(np.argmax(steps))
+            if steps[gap] > MAX_RESAMPLED_GAP * med:
+                # (a 60 s pause in a 4 s record became 60,000 interpolated samples, and identify
+                # scored its hold-out on that invented ramp: found by fuzzing)
+                raise DataError(
+                    f"{where}: the time column {labels['t']!r} has a gap of {steps[gap]:.6g} s (about "
+                    f"{steps[gap] / med:.3g} median steps) at {src.locate(keys['t'], gap + 1)}: resampling would "
+                    f"invent the record across it; split the file there (or identify on one side: --train)")
             span = float(t[-1] - t[0])
             count = math.floor(span / target_dt * (1 + 1e-12)) + 1
             check_size(where, 8.0 * 3 * count, limit, f"resampling to {count} samples")

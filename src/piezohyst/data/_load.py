@@ -296,6 +296,9 @@ def save_dataset(path: str | os.PathLike[str], ds: Dataset, *, force: bool = Fal
     if not isinstance(ds, Dataset):
         raise TypeError(f"save_dataset writes a Dataset, got {type(ds).__name__}")
     p = Path(path)
+    if p.suffix.lower() not in (".npz", ".csv", ".txt", ".dat", ".tsv", ""):
+        # (s.mat, s.xlsx and s.h5 were written as CSV text: found by fuzzing)
+        raise ValueError(f"{p}: save_dataset writes CSV (.csv, .txt, .dat) or NumPy .npz; give one of those names")
     if p.suffix.lower() == ".npz":
         def write_npz(tmp: Path) -> None:
             with open(tmp, "wb") as fh:
