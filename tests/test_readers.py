@@ -683,3 +683,24 @@ def test_resampling_refuses_to_bridge_a_pause_in_the_recording(tmp_path):
     t2[2000:] += 3e-3  # a few missed samples: resampled as before
     np.savetxt(p, np.column_stack([t2, u, 0.5 * u]), delimiter=",", header="t,u,y", comments="")
     assert ph.load_dataset(p, resample=True).meta["resampled"]["samples_after"] == 4003
+
+
+def test_an_hdf5_datasets_units_attribute_is_used(tmp_path):
+    # found by fuzzing: y in nm and t in ms, said so by each dataset's "units" attribute, were read
+    # as um and s ("no unit stated")
+    h5py = pytest.importorskip("h5py")
+    t = np.arange(2000) * 1e-3
+    p = tmp_path / "stated.h5"
+    with h5py.File(p, "w") as f:
+        f["t"] = t * 1000.0
+        f["u"] = 50.0 + 50.0 * np.sin(2 * np.pi * t)
+        f["y"] = 2000.0 + 2000.0 * np.sin(2 * np.pi * t)
+        f["t"].attrs["units"] = "ms"
+        f["y"].attrs["units"] = "nm"
+    ds = ph.load_dataset(p)
+    assert ds.dt == pytest.approx(1e-3) and ds.y.max() == pytest.approx(4.0)
+    assert ds.meta["units"]["y"]["unit"] == "nm"
+    with h5py.File(p, "a") as f:
+        f["u"].attrs["units"] = "furlongs"
+    with pytest.raises(ph.DataError, match=r"'furlongs' of 'u'.*units=\{'u': 'V'\}"):
+        ph.load_dataset(p)

@@ -301,8 +301,10 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
             convs[r] = conversion(r, labels[r], stated=src.stated_unit(keys[r]), given=units.get(r),
                                   name=src.unit_name(keys[r]))
         except UnitError as exc:
-            raise DataError(f"{where}: {exc}; declare the unit (units={{'{r}': 'um'}} in Python) or "
-                            f"write a known unit in the name, e.g. 'Displacement [um]'") from None
+            # (the hint said units={'u': 'um'} whatever the column: found by fuzzing)
+            unit, example = {"t": ("s", "Time [s]"), "u": ("V", "Voltage [V]")}.get(r, ("um", "Displacement [um]"))
+            raise DataError(f"{where}: {exc}; declare the unit (units={{'{r}': '{unit}'}} in Python) or "
+                            f"write a known unit in the name, e.g. '{example}'") from None
         v = convs[r].apply(a)
         if not np.all(np.isfinite(v)):
             i = int(np.argmax(~np.isfinite(v)))

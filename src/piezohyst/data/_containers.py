@@ -192,7 +192,9 @@ def _h5_node(f: Any, obj: Any, matlab: bool, budget: _Budget, depth: int) -> Any
         return Opaque(f"a MATLAB object of class {cls!r} that can only be read in MATLAB")
     kind = obj.dtype.kind
     if kind in "fiu" and not obj.dtype.names:
-        return Leaf(tuple(int(d) for d in obj.shape), obj.dtype, _h5_reader(obj, transpose=False))
+        stated = next((u.strip() for u in (_attr(obj, a) for a in ("units", "unit", "Units", "Unit"))
+                       if u is not None and u.strip()), None)
+        return Leaf(tuple(int(d) for d in obj.shape), obj.dtype, _h5_reader(obj, transpose=False), stated)
     if kind in "SUO" and obj.shape == ():
         v = obj[()]
         return v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v)

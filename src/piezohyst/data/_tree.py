@@ -37,6 +37,8 @@ class Leaf:
     shape: tuple[int, ...]
     dtype: np.dtype
     _read: Callable[[], np.ndarray]
+    #: the unit the file states on the array itself (an HDF5 dataset's ``units`` attribute)
+    unit: str | None = None
 
     def read(self) -> np.ndarray:
         return np.asarray(self._read())
@@ -196,7 +198,7 @@ class TreeSource:
             labels = [str(keys[-1])] if keys and isinstance(keys[-1], str) else []
             unit_name = labels[0] if labels else path
             parent = ancestors[-1] if ancestors else None
-            unit = None
+            unit = node.unit  # (an HDF5 dataset's units attribute was ignored: found by fuzzing)
             if isinstance(parent, dict):
                 for f in NAME_FIELDS:
                     v = parent.get(f)
@@ -204,7 +206,7 @@ class TreeSource:
                         labels += [v.strip(), _last_component(v)]
                         unit_name = _last_component(v)
                         break
-                for f in UNIT_FIELDS:
+                for f in UNIT_FIELDS if unit is None else ():
                     v = parent.get(f)
                     if isinstance(v, str) and v.strip():
                         unit = v.strip()
