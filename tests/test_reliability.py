@@ -61,7 +61,7 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
     from piezohyst.export.c import export_c
     from piezohyst.export.matlab import export_matlab
     from piezohyst.control.tuning import SafeTuningOptions
-    from piezohyst.export.tables import resample_reference
+    from piezohyst.export.tables import resample_reference, write_table
     from piezohyst.modelio import model_from_dict
     from piezohyst.signals import estimate_period, time_vector
 
@@ -76,6 +76,8 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
 
     good = json.loads(json.dumps(model_to_dict(pi)))
     (tmp / "exists.json").write_text("{}")
+    (tmp / "enc.csv").write_bytes(("t,u,y,note\n" + "\n".join(f"{0.001 * i},{i % 7},{i % 5},caf\xe9" for i in range(50)))
+                                  .encode("cp1252"))
     (tmp / "a_dir").mkdir(exist_ok=True)
     nan, inf = float("nan"), float("inf")
 
@@ -245,6 +247,17 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("PID dt set negative after construction", lambda: setattr(ph.PID(1.0, 0.0, 0.0, 1e-3), "dt", -1.0), ("dt",)),
         ("save_dataset to a .mat name", lambda: ph.save_dataset(tmp / "s.mat", ph.Dataset(u_t, u, y)), ("s.mat",)),
         ("FitOptions resample 'no'", lambda: ph.fleet.FitOptions(resample="no"), ("resample",)),
+        ("write_table lengths differ", lambda: write_table(tmp / "wt1.mat", u_t, u, u[:5], dt=1e-3, comments=[]),
+         ("same length",)),
+        ("write_table NaN command", lambda: write_table(tmp / "wt2.csv", u_t, u, np.r_[u[:-1], nan], dt=1e-3,
+                                                        comments=[]), ("u",)),
+        ("write_table dt 0", lambda: write_table(tmp / "wt3.h", u_t, u, u, dt=0.0, comments=[]), ("dt",)),
+        ("resample_reference NaN", lambda: resample_reference(u_t, np.r_[u[:-1], nan], 2000.0), ("x",)),
+        ("resample_reference lengths differ", lambda: resample_reference(u_t, u[:50], 2000.0), ("same length",)),
+        ("load_dataset encoding not a text codec", lambda: ph.load_dataset(tmp / "enc.csv", encoding="zlib"),
+         ("zlib", "text encoding")),
+        ("load_dataset encoding the file is not in", lambda: ph.load_dataset(tmp / "enc.csv", encoding="utf-8"),
+         ("utf-8",)),
         ("SafeTuningOptions back_off inf", lambda: SafeTuningOptions(back_off=inf), ("back_off",)),
         ("commission n 0", lambda: ph.commission(rig, n=0), ("n must",)),
         ("simulate complex", lambda: pi.simulate(u + 1j), ("u",)),

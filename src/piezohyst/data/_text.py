@@ -146,18 +146,30 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
           decimal: str | None = None, encoding: str | None = None) -> Layout:
     """The layout of a text table from its first bytes (DataError when there is no table)."""
     where = str(path)
+    given = encoding is not None
     if encoding is None:
         encoding, bom = detect_encoding(head)
     else:
-        bom = 3 if encoding.lower().replace("_", "-") in ("utf-8", "utf8") and head.startswith(codecs.BOM_UTF8) else 0
+        # (found by fuzzing: an int failed in Python's words, codecs that are not text encodings
+        # such as "rot13" or "zlib" failed deep inside, and a given encoding the file did not decode
+        # in was silently replaced by latin-1)
+        if not isinstance(encoding, str):
+            raise DataError(f"{where}: encoding must be the name of a text encoding (e.g. 'utf-8', 'cp1252'), "
+                            f"got {encoding!r}")
         try:
-            codecs.lookup(encoding)
+            info = codecs.lookup(encoding)
         except LookupError:
             raise DataError(f"{where}: unknown text encoding {encoding!r}") from None
+        if not getattr(info, "_is_text_encoding", True):
+            raise DataError(f"{where}: {encoding!r} is not a text encoding (it is a codec of bytes or of text to text)")
+        bom = 3 if encoding.lower().replace("_", "-") in ("utf-8", "utf8") and head.startswith(codecs.BOM_UTF8) else 0
     truncated = size > len(head)
     try:
         text = codecs.getincrementaldecoder(encoding)(errors="strict").decode(head[bom:], final=not truncated)
-    except UnicodeDecodeError:
+    except (UnicodeDecodeError, UnicodeError) as exc:
+        if given:
+            raise DataError(f"{where}: the file is not {encoding} text ({exc}); give the encoding it is in, or "
+                            "leave it out to have it found") from None
         if encoding.startswith("utf-16"):
             raise NotText("it is not valid UTF-16 text") from None
         text = head[bom:].decode("latin-1")

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validation import FloatArray
+from .._validation import FloatArray, as_scalar, as_signal
 
 #: The table files ``write_table`` (and ``piezohyst compensate -o``) write, by extension.
 TABLE_FORMATS = (".csv", ".txt", ".npy", ".mat", ".h")
@@ -44,10 +44,17 @@ def table_format(path: Any) -> str:
     return suffix
 
 
+#: C99's keywords: a table named after one (int.h) would not compile (found by fuzzing).
+C_KEYWORDS = frozenset(
+    "auto break case char const continue default do double else enum extern float for goto if inline int long "
+    "register restrict return short signed sizeof static struct switch typedef union unsigned void volatile "
+    "while _Bool _Complex _Imaginary".split())
+
+
 def c_identifier(stem: str) -> str:
-    """A C identifier from a file name's stem."""
+    """A C identifier from a file name's stem (never a keyword)."""
     name = re.sub(r"[^A-Za-z0-9_]", "_", stem).strip("_") or "table"
-    return "table_" + name if name[0].isdigit() else name
+    return "table_" + name if name[0].isdigit() or name in C_KEYWORDS else name
 
 
 def write_table(path: Any, t: FloatArray, x_d: FloatArray, u: FloatArray, *, dt: float,
@@ -58,7 +65,16 @@ def write_table(path: Any, t: FloatArray, x_d: FloatArray, u: FloatArray, *, dt:
 
     out = check_writable(path, force)
     fmt = table_format(out)
-    t, x_d, u = (np.asarray(a, dtype=np.float64) for a in (t, x_d, u))
+    t, x_d, u = (as_signal(n, a) for n, a in (("t", t), ("x_d", x_d), ("u", u)))
+    # (found by fuzzing: tables of different lengths were written to .mat, a NaN command to .csv,
+    # dt=0 divided by zero and dt<0 wrote a negative rate; a comment could end the C comment, and
+    # one given as a string was written a character per line)
+    if not t.size == x_d.size == u.size:
+        raise ValueError(f"t, x_d and u must have the same length, got {t.size}, {x_d.size} and {u.size}")
+    dt = as_scalar("dt", dt, positive=True)
+    if isinstance(comments, str):
+        comments = [comments]
+    comments = [str(c).replace("*/", "* /") for c in comments]
     meta = dict(meta or {})
 
     if fmt in (".csv", ".txt"):
@@ -132,8 +148,18 @@ def resample_reference(t: FloatArray, x: FloatArray, fs: float, *, periodic: boo
     """
     if not (math.isfinite(fs) and fs > 0):
         raise ValueError(f"the table rate must be a positive number of Hz, got {fs}")
-    t = np.asarray(t, dtype=np.float64)
-    x = np.asarray(x, dtype=np.float64)
+    # (found by fuzzing: NaN in x gave a NaN table, different lengths numpy's "fp and xp", empty
+    # arrays an IndexError, a time column that runs backwards "shorter than two samples")
+    t = as_signal("t", t, min_length=2)
+    x = as_signal("x", x, min_length=2)
+    if t.size != x.size:
+        raise ValueError(f"t and x must have the same length, got {t.size} and {x.size}")
+    if not np.all(np.diff(t) > 0):
+        raise ValueError("t must increase from sample to sample")
+    if max_memory is not None:  # ("1G" as load_dataset takes it; -1 said "over the limit of -1 bytes")
+        from ..data._columns import parse_size
+
+        max_memory = parse_size(max_memory, "max_memory")
     dt_old = float(np.median(np.diff(t))) if t.size > 1 else 1.0 / fs
     if periodic:
         period = x.size * dt_old
