@@ -704,3 +704,14 @@ def test_an_hdf5_datasets_units_attribute_is_used(tmp_path):
         f["u"].attrs["units"] = "furlongs"
     with pytest.raises(ph.DataError, match=r"'furlongs' of 'u'.*units=\{'u': 'V'\}"):
         ph.load_dataset(p)
+
+
+def test_a_top_level_time_named_with_its_unit_in_brackets_is_found(tmp_path):
+    # found by fuzzing: npz/HDF5 keys "Time [ms]", "Voltage [mV]", "Displacement [nm]" were refused
+    # with "no time column" (a bracket in the key took it for a path into a struct)
+    t = np.arange(2000) * 1e-3
+    p = tmp_path / "bracketed.npz"
+    np.savez(p, **{"Time [ms]": t * 1000.0, "Voltage [mV]": 5e4 + 5e4 * np.sin(2 * np.pi * t),
+                   "Displacement [nm]": 2e3 + 2e3 * np.sin(2 * np.pi * t)})
+    ds = ph.load_dataset(p)
+    assert ds.dt == pytest.approx(1e-3) and ds.u.max() == pytest.approx(100.0) and ds.y.max() == pytest.approx(4.0)
