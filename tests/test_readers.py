@@ -715,3 +715,15 @@ def test_a_top_level_time_named_with_its_unit_in_brackets_is_found(tmp_path):
                    "Displacement [nm]": 2e3 + 2e3 * np.sin(2 * np.pi * t)})
     ds = ph.load_dataset(p)
     assert ds.dt == pytest.approx(1e-3) and ds.u.max() == pytest.approx(100.0) and ds.y.max() == pytest.approx(4.0)
+
+
+def test_a_unit_spelt_mega_is_not_read_as_milli(tmp_path):
+    # found by fuzzing: units were matched in any case, so "Mm" (megametres) was read as mm and "Ms"
+    # as ms; all capitals ("MS", "MV", as loggers write headers) stay milli
+    t = np.arange(200) * 1e-3
+    p = tmp_path / "x.npz"
+    np.savez(p, t=t, u=50 + 50 * np.sin(2 * np.pi * t), y=2 + 2 * np.sin(2 * np.pi * t))
+    for units, wrong in (({"y": "Mm"}, "Mm"), ({"t": "Ms"}, "Ms")):
+        with pytest.raises(ph.DataError, match=f"'{wrong}' .* reads as mega .* for milli write 'm{wrong[1]}'"):
+            ph.load_dataset(p, units=units)
+    assert ph.load_dataset(p, units={"u": "MV"}).u.max() == pytest.approx(1e-3 * float(np.max(50 + 50 * np.sin(2 * np.pi * t))))

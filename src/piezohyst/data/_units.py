@@ -195,8 +195,18 @@ def conversion(role: str, column: str, *, stated: str | None = None, given: Any 
     return Conversion(column, None, canonical, Fraction(1), "assumed")
 
 
+#: Units spelt with the SI prefix mega, a capital M before a small letter: read in any case, "Mm" and
+#: "Ms" were taken for mm and ms (factors of 10^9 off; found by fuzzing). Refused, naming the milli
+#: unit. (All capitals, "MS" or "MV", stay milli: loggers that write headers in capitals mean that.)
+_MEGA = re.compile(r"^M[ms]$")
+
+
 def _checked(role: str, column: str, unit: str, how: str, *, explicit: bool) -> Conversion:
     quantity, canonical = ROLES[role]
+    if _MEGA.match(unit.strip()):
+        raise UnitError(f"the unit {unit.strip()!r} of {column!r} ({_ROLE_WORDS[role]}) reads as mega "
+                        f"({unit.strip()[1:]} x 10^6), which piezohyst does not take; for milli write "
+                        f"'m{unit.strip()[1:]}'")
     key = unit_key(unit)
     if key in _DIMENSIONLESS:
         return Conversion(column, None, canonical, Fraction(1), "assumed")
