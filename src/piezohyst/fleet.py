@@ -1061,8 +1061,12 @@ def batch_statistics(df: Any, *, threshold: float = OUTLIER_MADS) -> BatchStatis
     BatchStatistics
     """
     pd = _require("pandas")
-    if not (isinstance(threshold, (int, float)) and np.isfinite(threshold) and threshold > 0):
+    # (np.int64(3) was refused and True taken as 1; a list failed on .columns: found by fuzzing)
+    if isinstance(threshold, (bool, np.bool_)) or not (
+            isinstance(threshold, (int, float, np.integer, np.floating)) and np.isfinite(threshold) and threshold > 0):
         raise ValueError(f"threshold must be a positive number of MADs, got {threshold!r}")
+    if not isinstance(df, pd.DataFrame):
+        raise TypeError(f"df must be the pandas DataFrame identify_many returns, got {type(df).__name__}")
     missing = [c for c in ("record", "status", *FIGURES) if c not in df.columns]
     if missing:
         raise ValueError(f"df lacks the column(s) {missing}; give the table identify_many returns")

@@ -51,7 +51,9 @@ class Dataset:
                 arr = arr.copy()  # never freeze (or share) the caller's own array
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
-        object.__setattr__(self, "meta", dict(self.meta))
+        if self.meta is not None and not isinstance(self.meta, dict):
+            raise TypeError(f"meta must be a dict (or None), got {type(self.meta).__name__}")
+        object.__setattr__(self, "meta", dict(self.meta or {}))  # (None failed: 'NoneType' is not iterable)
 
     @classmethod
     def _checked(cls, t: FloatArray, u: FloatArray, y: FloatArray, meta: dict[str, Any]) -> Dataset:
@@ -86,7 +88,12 @@ class Dataset:
 
     def slice(self, start: int | None = None, stop: int | None = None) -> Dataset:
         """Samples ``start:stop`` as a new data set (meta says which)."""
+        for name, v in (("start", start), ("stop", stop)):  # (1.5 failed in Python's words: found by fuzzing)
+            if v is not None and (isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer))):
+                raise TypeError(f"slice {name} must be a whole sample number or None, got {v!r}")
         sl = slice(start, stop)
+        if len(range(*sl.indices(len(self.t)))) < 2:
+            raise DataError(f"slice {start}:{stop} of {len(self.t)} samples holds fewer than 2")
         meta = {**self.meta, "slice": [start, stop]}
         return Dataset(self.t[sl], self.u[sl], self.y[sl], meta)
 
