@@ -258,6 +258,8 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
          ("zlib", "text encoding")),
         ("load_dataset encoding the file is not in", lambda: ph.load_dataset(tmp / "enc.csv", encoding="utf-8"),
          ("utf-8",)),
+        ("plot_loops with ax a string", lambda: __import__("piezohyst.plots", fromlist=["x"]).plot_loops(
+            [("a", u, y)], ax="left"), ("ax", "Axes")),
         ("batch_statistics of a list", lambda: ph.fleet.batch_statistics([1, 2]), ("DataFrame",)),
         ("Dataset slice with a float", lambda: ph.Dataset(u_t, u, y).slice(1.5, 10), ("start",)),
         ("Dataset slice backwards", lambda: ph.Dataset(u_t, u, y).slice(10, 5), ("10:5",)),

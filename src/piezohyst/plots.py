@@ -33,6 +33,16 @@ def _ax(ax: Any = None) -> Any:
         import matplotlib.pyplot as plt
 
         _, ax = plt.subplots(figsize=(6.4, 4.8), layout="constrained")
+    return _check_axes(ax, "ax")
+
+
+def _check_axes(ax: Any, name: str) -> Any:
+    """``ax`` if it is a matplotlib Axes, else a TypeError naming the argument (a string or a list
+    of Axes failed inside matplotlib with "'str' object has no attribute 'plot'": found by fuzzing)."""
+    from matplotlib.axes import Axes
+
+    if not isinstance(ax, Axes):
+        raise TypeError(f"{name} must be a matplotlib Axes (e.g. from plt.subplots()), got {type(ax).__name__}")
     return ax
 
 
@@ -143,7 +153,7 @@ def plot_loops(runs: Sequence[tuple[str, Any, Any]], *, ax: Any = None,
         if title:
             fig.suptitle(title, fontsize=10)
     else:
-        panels = [ax] * len(runs)
+        panels = [_check_axes(ax, "ax")] * len(runs)
     lines = []
     for i, ((label, u, y), a) in enumerate(zip(runs, panels)):
         u = np.asarray(u, dtype=float)
@@ -243,7 +253,9 @@ def plot_fit(u: Any, y: Any, y_model: Any, *, t: Any = None, dt: float | None = 
         axes = (m["loop"], m["time"], m["resid"])
         if title:
             fig.suptitle(title, fontsize=10)
-    a_loop, a_time, a_res = axes
+    if isinstance(axes, (str, bytes)) or not hasattr(axes, "__len__") or len(axes) != 3:
+        raise TypeError(f"axes must be three matplotlib Axes (loop, time, residual), got {axes!r:.60}")
+    a_loop, a_time, a_res = (_check_axes(a, f"axes[{i}]") for i, a in enumerate(axes))
     arts: list[Any] = []
     arts += a_loop.plot(us, ys, lw=1.4, color="0.6", label=data_label)
     arts += a_loop.plot(us, ms, lw=0.9, ls="--", color="C3", label=model_name)
@@ -329,6 +341,9 @@ def plot_tracking(t: Any, reference: Any, output: Any, *, command: Any = None, s
         axes = (m["time"], m["error"], m.get("command"), m["xy"])
         if title:
             fig.suptitle(title, fontsize=10)
+    if isinstance(axes, (str, bytes)) or not hasattr(axes, "__len__") or not 1 <= len(axes) <= 4:
+        raise TypeError(f"axes must be up to four matplotlib Axes (time, error, command, x-y), got {axes!r:.60}")
+    axes = [a if a is None else _check_axes(a, f"axes[{i}]") for i, a in enumerate(axes)]
     axes = list(axes) + [None] * (4 - len(axes))
     ax_t, ax_e, ax_u, ax_xy = axes[:4]
     arts: list[Any] = []
