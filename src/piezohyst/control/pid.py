@@ -19,6 +19,16 @@ import numpy as np
 from .._validation import as_scalar
 
 
+def _limit(name: str, value: Any, none: float) -> float:
+    """An output limit: a number, +-inf allowed, NaN not; None: no limit (``none``)."""
+    if value is None:
+        return none
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or math.isnan(value):
+        raise TypeError(f"{name} must be a number (or None for no limit), got {value!r}")
+    return float(value)
+
+
 class PID:
     """``u = kp e + ki integral(e) + kd de/dt``, discretised with step ``dt``.
 
@@ -41,53 +51,88 @@ class PID:
         Output limits.
     """
 
-    #: Settings checked whenever they are set, in the constructor or after it (kd changed after
-    #: construction kept its old derivative coefficients, while settings() showed the new one;
-    #: limits given as strings were compared as text: found by fuzzing).
-    _CHECKED = {"kp": {}, "ki": {}, "kd": {}, "dt": {"positive": True}, "tf": {"positive": True}}
-    kp: float
-    ki: float
-    kd: float
-    dt: float
-    tf: float
-    u_min: float
-    u_max: float
+    # The settings are properties, checked whenever they are set, in the constructor or after it,
+    # and the derivative filter's coefficients follow them (kd changed after construction kept its
+    # old derivative while settings() showed the new one; limits given as strings were compared as
+    # text: found by fuzzing). step() reads the checked values, as fast as plain attributes.
 
     def __init__(self, kp: float = 0.0, ki: float = 0.0, kd: float = 0.0, dt: float = 1e-4, *,
                  tf: float | None = None, u_min: float | None = -math.inf, u_max: float | None = math.inf):
-        self.kp = kp
-        self.ki = ki
-        self.kd = kd
-        self.dt = dt
-        self.tf = tf if tf is not None else 2.0 * self.dt
-        self.u_min = u_min  # type: ignore[assignment]  # (None: no limit; __setattr__ makes it a float)
-        self.u_max = u_max  # type: ignore[assignment]
-        if not (self.u_min < self.u_max):
-            raise ValueError(f"u_min must be less than u_max, got {self.u_min:g} and {self.u_max:g}")
+        self._kp = as_scalar("kp", kp)
+        self._ki = as_scalar("ki", ki)
+        self._kd = as_scalar("kd", kd)
+        self._dt = as_scalar("dt", dt, positive=True)
+        self._tf = as_scalar("tf", tf, positive=True) if tf is not None else 2.0 * self._dt
+        self._u_min = _limit("u_min", u_min, -math.inf)
+        self._u_max = _limit("u_max", u_max, math.inf)
+        if not (self._u_min < self._u_max):
+            raise ValueError(f"u_min must be less than u_max, got {self._u_min:g} and {self._u_max:g}")
+        self._filter()
         self.reset()
 
-    def __setattr__(self, name: str, value: Any) -> None:
-        if name in PID._CHECKED:
-            value = as_scalar(name, value, **PID._CHECKED[name])  # type: ignore[arg-type]
-        elif name in ("u_min", "u_max"):  # None: no limit; +-inf allowed, NaN not
-            if value is None:
-                value = -math.inf if name == "u_min" else math.inf
-            elif isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                    or math.isnan(value):
-                raise TypeError(f"{name} must be a number (or None for no limit), got {value!r}")
-            else:
-                value = float(value)
-        object.__setattr__(self, name, value)
+    def _filter(self) -> None:
+        """The derivative filter's pole and gain from the present ``kd``, ``tf`` and ``dt``."""
+        self._a = self._tf / (self._tf + self._dt)
+        self._b = self._kd / (self._tf + self._dt)
+
+    kp = property(lambda self: self._kp, lambda self, v: setattr(self, "_kp", as_scalar("kp", v)),
+                  doc="Proportional gain.")
+    ki = property(lambda self: self._ki, lambda self, v: setattr(self, "_ki", as_scalar("ki", v)),
+                  doc="Integral gain, 1/s.")
 
     @property
-    def _a(self) -> float:
-        """The derivative filter's pole, from the present ``tf`` and ``dt``."""
-        return self.tf / (self.tf + self.dt)
+    def kd(self) -> float:
+        """Derivative gain, s."""
+        return self._kd
+
+    @kd.setter
+    def kd(self, v: float) -> None:
+        self._kd = as_scalar("kd", v)
+        self._filter()
 
     @property
-    def _b(self) -> float:
-        """The derivative filter's gain, from the present ``kd``, ``tf`` and ``dt``."""
-        return self.kd / (self.tf + self.dt)
+    def dt(self) -> float:
+        """Sample period, s."""
+        return self._dt
+
+    @dt.setter
+    def dt(self, v: float) -> None:
+        self._dt = as_scalar("dt", v, positive=True)
+        self._filter()
+
+    @property
+    def tf(self) -> float:
+        """Derivative filter time constant, s."""
+        return self._tf
+
+    @tf.setter
+    def tf(self, v: float) -> None:
+        self._tf = as_scalar("tf", v, positive=True)
+        self._filter()
+
+    @property
+    def u_min(self) -> float:
+        """Lower output limit (-inf: none)."""
+        return self._u_min
+
+    @u_min.setter
+    def u_min(self, v: float | None) -> None:
+        v = _limit("u_min", v, -math.inf)
+        if not v < self._u_max:
+            raise ValueError(f"u_min must be less than u_max, got {v:g} and {self._u_max:g}")
+        self._u_min = v
+
+    @property
+    def u_max(self) -> float:
+        """Upper output limit (inf: none)."""
+        return self._u_max
+
+    @u_max.setter
+    def u_max(self, v: float | None) -> None:
+        v = _limit("u_max", v, math.inf)
+        if not self._u_min < v:
+            raise ValueError(f"u_min must be less than u_max, got {self._u_min:g} and {v:g}")
+        self._u_max = v
 
     def reset(self) -> None:
         """Clear the integral, the derivative filter and the previous error."""
@@ -110,16 +155,16 @@ class PID:
             self._first = False
         self._d = self._a * self._d + self._b * (e - self._e_prev)
         self._e_prev = e
-        inc = self.ki * self.dt * e
-        u_try = self.kp * e + self.integral + inc + self._d
+        inc = self._ki * self._dt * e
+        u_try = self._kp * e + self.integral + inc + self._d
         # conditional integration: no integrating further into a limit (own or the actuator's)
         pushes_up = inc > 0
-        blocked = (pushes_up and (u_try > self.u_max or saturated > 0)) or (
-            not pushes_up and (u_try < self.u_min or saturated < 0))
+        blocked = (pushes_up and (u_try > self._u_max or saturated > 0)) or (
+            not pushes_up and (u_try < self._u_min or saturated < 0))
         if not blocked:
             self.integral += inc
-        u = self.kp * e + self.integral + self._d
-        return min(max(u, self.u_min), self.u_max)
+        u = self._kp * e + self.integral + self._d
+        return min(max(u, self._u_min), self._u_max)
 
     def settings(self) -> dict[str, float]:
         """The gains and limits as plain data."""
