@@ -75,10 +75,23 @@ class PID:
         self._a = self._tf / (self._tf + self._dt)
         self._b = self._kd / (self._tf + self._dt)
 
-    kp = property(lambda self: self._kp, lambda self, v: setattr(self, "_kp", as_scalar("kp", v)),
-                  doc="Proportional gain.")
-    ki = property(lambda self: self._ki, lambda self, v: setattr(self, "_ki", as_scalar("ki", v)),
-                  doc="Integral gain, 1/s.")
+    @property
+    def kp(self) -> float:
+        """Proportional gain."""
+        return self._kp
+
+    @kp.setter
+    def kp(self, v: float) -> None:
+        self._kp = as_scalar("kp", v)
+
+    @property
+    def ki(self) -> float:
+        """Integral gain, 1/s."""
+        return self._ki
+
+    @ki.setter
+    def ki(self, v: float) -> None:
+        self._ki = as_scalar("ki", v)
 
     @property
     def kd(self) -> float:
