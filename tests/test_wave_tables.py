@@ -168,3 +168,22 @@ def test_non_finite_numbers_anywhere_are_refused(tmp_path, pi_file, capsys, wher
     assert main(["compensate", "--model", str(pi_file), "--reference", str(path), "--ref-col", "x",
                  "-o", str(tmp_path / "c.csv")]) == 2
     one_line_error(capsys, "NaN or inf", "row 101")
+
+
+def test_a_period_written_closed_loops_as_the_open_one(tmp_path, pi_file, capsys):
+    # found by fuzzing: a period whose last sample repeats its first (as a closed curve is often
+    # written) looped with that sample twice, one sample longer than the period
+    n = 1000
+    x = 1.2 + 0.8 * np.sin(2 * np.pi * np.arange(n + 1) / n)
+    t = np.arange(n + 1) * 1e-3
+    closed, opened = tmp_path / "closed.csv", tmp_path / "open.csv"
+    np.savetxt(closed, np.column_stack([t, x]), delimiter=",", header="t,x", comments="")
+    np.savetxt(opened, np.column_stack([t[:-1], x[:-1]]), delimiter=",", header="t,x", comments="")
+    tables = {}
+    for ref in (closed, opened):
+        out = tmp_path / f"u_{ref.stem}.npy"
+        assert main(["compensate", "--model", str(pi_file), "--reference", str(ref), "--periodic", "-o", str(out)]) == 0
+        tables[ref.stem] = np.load(out)
+    assert "last sample repeats its first" in capsys.readouterr().out
+    assert tables["closed"].size == n
+    np.testing.assert_array_equal(tables["closed"], tables["open"])

@@ -138,6 +138,12 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     lo, hi, range_from = amplifier_range(args.u_min, args.u_max, doc)
     sha = hashlib.sha256(Path(args.model).read_bytes()).hexdigest()
     t, ref = load_reference(args.reference, args.ref_col, args.t_col, args.fs)
+    closed = bool(args.periodic and ref.size > 2
+                  and abs(ref[-1] - ref[0]) <= 1e-12 * max(float(np.ptp(ref)), abs(float(ref[0])), 1e-300))
+    if closed:
+        # a period written closed (its last sample repeats its first) looped with that sample twice,
+        # one sample longer than the period (found by fuzzing): the repeat is dropped
+        t, ref = t[:-1], ref[:-1]
     dt_ref = float((t[-1] - t[0]) / (t.size - 1))
     resampled = False
     if args.fs is not None and abs(1.0 / args.fs - dt_ref) > 1e-9 * dt_ref:
@@ -155,6 +161,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         plain = ff.command(ref)
         u, periodic_info = periodic_table(ff, ref, tol=1e-6 * (hi - lo))
         periodic_info["wrap_step_from_rest_V"] = float(abs(plain[0] - plain[-1]))
+        periodic_info["closing_sample_dropped"] = closed
     else:
         u = ff.command(ref)
     bad = ~np.isfinite(u)
@@ -200,6 +207,9 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     else:
         msg = (f"wrote {u.size} commands ({u.min():.3f} .. {u.max():.3f} V"
                + (f", {n_limited} clipped" if n_limited else "") + f", {1.0 / dt:g} Hz) to {shown(out)}")
+        if periodic_info is not None and closed:
+            msg += (f"\nthe reference's last sample repeats its first (a closed period): dropped, so the table "
+                    f"loops every {u.size} samples")
         if periodic_info is not None:
             msg += (f"\nperiodic steady state after {periodic_info['cycles']} cycles"
                     + ("" if periodic_info["converged"] else " (NOT converged)")
