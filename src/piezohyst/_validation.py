@@ -70,6 +70,15 @@ def as_count(name: str, value: Any, *, minimum: int = 0, maximum: int | None = N
     return v
 
 
+def as_flag(name: str, value: Any, *, default_ok: bool = False) -> Any:
+    """``value`` if it is a bool (or, with ``default_ok``, None for the default), else a TypeError
+    naming ``name``: a string such as ``"no"`` is true in Python and ran as if it said yes."""
+    if (value is None and default_ok) or isinstance(value, (bool, np.bool_)):
+        return value
+    raise TypeError(f"{name} must be True or False{' (or None for the default)' if default_ok else ''}, "
+                    f"got {value!r}")
+
+
 def frozen(arr: FloatArray) -> FloatArray:
     """A read-only copy, so a model's parameters cannot change under it."""
     out = np.array(arr, dtype=np.float64, copy=True)

@@ -168,7 +168,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ._validation import FloatArray, as_count, as_scalar, as_signal
+from ._validation import FloatArray, as_count, as_flag, as_scalar, as_signal
 from .control.tracking import (LoopWatch, TrackingResult, UnstableLoopError, _check_period, lead_in_after,
                                lead_in_from_rest)
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
@@ -822,8 +822,7 @@ class CommissionedController:
         period = _check_period(period, r.size)  # (learning divided by period=0 before the metrics saw it)
         self._check_reachable(r)
         for name, flag in (("feedback", feedback), ("learning", learning), ("conditioning", conditioning)):
-            if flag is not None and not isinstance(flag, (bool, np.bool_)):  # feedback="no" ran with feedback
-                raise TypeError(f"{name} must be True or False (or None for the default), got {flag!r}")
+            as_flag(name, flag, default_ok=True)  # (feedback="no" ran with feedback)
         cond = self.conditioning if conditioning is None else bool(conditioning)
         if feedback and self.mode != "buffered" and self.tuning is None:
             # (it ran without feedback and said nothing: found by fuzzing)
@@ -1670,8 +1669,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     # given as a dict or a progress that cannot be called failed after the identification run,
     # and tune="no" tuned: found by fuzzing)
     for name, flag in (("tune", tune), ("conditioning", conditioning)):
-        if not isinstance(flag, (bool, np.bool_)):
-            raise TypeError(f"{name} must be True or False, got {flag!r}")
+        as_flag(name, flag)
     if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a whole number >= 0, got {seed!r}")
     if tuning is not None and not isinstance(tuning, SafeTuningOptions):

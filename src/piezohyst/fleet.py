@@ -118,7 +118,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validation import as_scalar
+from ._validation import as_flag, as_scalar
 
 #: Suffixes of the data files a folder given as a path contributes (what load_dataset reads).
 DATA_SUFFIXES = (".csv", ".txt", ".dat", ".tsv", ".mat", ".npz", ".npy", ".h5", ".hdf5", ".parquet", ".xlsx", ".xls",
@@ -210,9 +210,8 @@ class FitOptions:
     def __post_init__(self) -> None:
         from .models.base import kind_class
 
-        for name in ("resample", "polish"):  # ("no" was taken as true: found by fuzzing)
-            if hasattr(self, name) and not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise TypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
+        as_flag("resample", self.resample)  # ("no" was taken as true: found by fuzzing)
+        as_flag("polish", self.polish)
         kind = self.kind
         if not isinstance(kind, str):
             raise TypeError(f"kind must be a string, got {type(kind).__name__}")
@@ -909,8 +908,7 @@ def identify_many(
     outlier_mads = as_scalar("outlier_mads", outlier_mads, positive=True)
     if not isinstance(paths, (str, os.PathLike)) and not hasattr(paths, "__iter__"):
         raise TypeError(f"paths must be a file, a folder, a glob or a list of them, got {type(paths).__name__}")
-    if not isinstance(force, (bool, np.bool_)):  # (force="no" refitted everything: found by fuzzing)
-        raise TypeError(f"force must be True or False, got {force!r}")
+    as_flag("force", force)  # (force="no" refitted everything: found by fuzzing)
     if not (isinstance(client, str) or client is None or hasattr(client, "submit")):
         raise TypeError(f"client must be None, 'serial', a scheduler address or a distributed.Client, "
                         f"got {type(client).__name__}")
