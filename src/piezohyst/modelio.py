@@ -25,7 +25,7 @@ import math
 import os
 import stat
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 
 from ._fileio import atomic_write_text, producer
@@ -312,22 +312,24 @@ class _ReadKeys(dict):  # type: ignore[type-arg]
         return out
 
 
+def _first_value(obj: Any, path: str, bad: Callable[[Any, bool], bool]) -> tuple[str, Any] | None:
+    """The path and value of the first value in the JSON data ``obj`` (depth first, ``path`` its
+    name) for which ``bad(value, in_a_list)`` holds, or None."""
+    items = obj.items() if isinstance(obj, dict) else enumerate(obj) if isinstance(obj, list) else ()
+    for k, v in items:
+        where = f"{path}.{k}" if isinstance(obj, dict) else f"{path}[{k}]"
+        if bad(v, isinstance(obj, list)):
+            return where, v
+        found = _first_value(v, where, bad) if isinstance(v, (dict, list)) else None
+        if found:
+            return found
+    return None
+
+
 def _text_in_arrays(obj: Any, path: str) -> tuple[str, str] | None:
     """The path of the first list item that is a string (``"0.0307"`` for a weight) and the string,
     or None."""
-    if isinstance(obj, dict):
-        for k, v in obj.items():
-            found = _text_in_arrays(v, f"{path}.{k}")
-            if found:
-                return found
-    elif isinstance(obj, list):
-        for i, v in enumerate(obj):
-            if isinstance(v, str):
-                return f"{path}[{i}]", v
-            found = _text_in_arrays(v, f"{path}[{i}]")
-            if found:
-                return found
-    return None
+    return _first_value(obj, path, lambda v, in_list: in_list and isinstance(v, str))
 
 
 #: The largest magnitude a model file's parameter may have: far beyond any physical value in any
@@ -338,15 +340,9 @@ HUGE_PARAMETER = 1e100
 def _huge_number(obj: Any, path: str) -> tuple[str, float] | None:
     """The path and value of the first number in ``obj`` beyond :data:`HUGE_PARAMETER` in
     magnitude, or None."""
-    items = obj.items() if isinstance(obj, dict) else enumerate(obj) if isinstance(obj, list) else ()
-    for k, v in items:
-        where = f"{path}.{k}" if isinstance(obj, dict) else f"{path}[{k}]"
-        if isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) > HUGE_PARAMETER:
-            return where, float(v)
-        found = _huge_number(v, where) if isinstance(v, (dict, list)) else None
-        if found:
-            return found
-    return None
+    found = _first_value(obj, path, lambda v, in_list: isinstance(v, (int, float)) and not isinstance(v, bool)
+                         and abs(v) > HUGE_PARAMETER)
+    return (found[0], float(found[1])) if found else None
 
 
 def _strict_loads(text: str, source: str) -> Any:
