@@ -174,9 +174,9 @@ from .control.tracking import (LoopWatch, TrackingResult, UnstableLoopError, _ch
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
-from .identify.select import MODE_SEARCH_TOP, WEAK_CORRELATION, structural_mode_search
-from .identify.monotone import (DEAD_BINS, DeadRange, DeadRangeWarning, MonotoneRange, NotMonotoneWarning, dead_range,
-                                monotone_range, rises_with_input, rising_part, butterfly_hint)
+from .identify.select import MODE_SEARCH_TOP, structural_mode_search
+from .identify.monotone import (DEAD_BINS, WEAK_CORRELATION, DeadRange, DeadRangeWarning, MonotoneRange,
+                                NotMonotoneWarning, dead_range, monotone_range, rising_part, butterfly_hint)
 from .models.base import Compensator, kind_class, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
                     plant_u_range)
@@ -1746,7 +1746,8 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     ident_counts = guard.counts()
     with np.errstate(invalid="ignore", divide="ignore"):
         r_run = float(np.corrcoef(ds.u[warmup:], ds.y[warmup:])[0, 1])
-    if not rises_with_input(ds.u[warmup:], ds.y[warmup:]) or not r_run >= WEAK_CORRELATION:
+    # (a falling output, r < 0, is below the bound too; NaN, a constant output, is not above it)
+    if not r_run >= WEAK_CORRELATION:
         rising = rising_part(ds.u[warmup:], ds.y[warmup:])
         hint = butterfly_hint(rising, "command", " V", "keep the command where it rises "
                               + ("" if rising is None else

@@ -67,9 +67,9 @@ def cmd_export(args: argparse.Namespace) -> int:
                              "inverse and a command table: drop them")
         out = Path(args.out)
         if out.suffix.lower() != ".mat":
-            if out.suffix and not out.is_dir():  # (mat/k4.txt became a folder holding k4.txt/pi.mat)
-                raise UsageError(f"{out}: give a .mat file name or a directory")
-            if out.exists() and not out.is_dir():
+            # an existing file, or a new name with another extension (mat/k4.txt became a folder
+            # holding k4.txt/pi.mat), is neither
+            if (out.suffix or out.exists()) and not out.is_dir():
                 raise UsageError(f"{out}: give a .mat file name or a directory")
             out = out / (model_path.stem + ".mat")
         res = export_matlab(model, out, u_range=(lo, hi), dt=dt, force=args.force, max_slew=args.max_slew,
