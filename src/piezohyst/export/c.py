@@ -160,7 +160,7 @@ def mean_slope(model: Any, dt: float | None, u_range: tuple[float, float]) -> fl
 
     lo, hi = float(u_range[0]), float(u_range[1])
     step = dt if model.dynamic else 1e-3
-    if not hi > lo or step is None or not 0.0 < float(step) and 2.0 / float(step) <= 1e6:
+    if not hi > lo or step is None or not (0.0 < float(step) and 2.0 / float(step) <= 1e6):
         return None
     u = sinusoid(1.0, 2, lo, hi, float(step))
     try:
