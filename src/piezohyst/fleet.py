@@ -119,10 +119,10 @@ from typing import Any
 import numpy as np
 
 from ._validation import as_flag, as_scalar
+from .data._load import READ_SUFFIXES
 
 #: Suffixes of the data files a folder given as a path contributes (what load_dataset reads).
-DATA_SUFFIXES = (".csv", ".txt", ".dat", ".tsv", ".mat", ".npz", ".npy", ".h5", ".hdf5", ".parquet", ".xlsx", ".xls",
-                 ".ods")
+DATA_SUFFIXES = READ_SUFFIXES
 
 #: The summary's columns, in order (see the module docstring).
 COLUMNS = (

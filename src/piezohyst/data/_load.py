@@ -21,6 +21,9 @@ from ._text import HEAD_BYTES, NotText, TextSource
 _HDF5 = b"\x89HDF\r\n\x1a\n"
 _OLE2 = b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1"
 _TEXT_SUFFIXES = ".csv .tsv .txt .dat .asc .lvm"
+#: The file name endings of the formats :func:`load_dataset` reads (it tells them by content; these
+#: are what a folder of records is searched for, e.g. by :func:`piezohyst.fleet.find_records`).
+READ_SUFFIXES = (*_TEXT_SUFFIXES.split(), ".mat", ".npz", ".npy", ".h5", ".hdf5", ".parquet", ".xlsx", ".xls", ".ods")
 _HASH_BESIDE = 4 << 20  # files from this size on are hashed in a thread while they are parsed
 
 #: format -> (what to install, the module that provides it); None when always available

@@ -389,8 +389,8 @@ class TreeSource:
     def guess(self, role: str) -> Key | None:
         pool = self.entries
         if role == "t":  # a struct's own time comes with its signals; guess only top-level vectors
-            # (by the root's own keys: a key such as "Time [ms]" or "time.s" is top-level too, and
-            # was passed over for its bracket or dot: found by fuzzing)
+            # (by the root's own keys: a key such as "Time [ms]" is top-level too, and was passed
+            # over for its bracket: found by fuzzing)
             top = self.root if isinstance(self.root, dict) else {}
             pool = [e for e in self.entries if e.path in top]
         normed = [(e, {normal_name(x) for x in [e.path] + e.labels}) for e in pool]
