@@ -244,9 +244,9 @@ def model_from_dict(doc: Any, *, source: str = "model") -> Any:
                              "them cannot overflow)")
     read = _ReadKeys(params)
     try:
+        # (a missing parameter is a ValueError naming it: every kind's from_dict is wrapped so at
+        # registration, models.base._checked_from_dict)
         model = registry_from_dict(kind, read)
-    except KeyError as exc:
-        raise ModelFileError(f"{source}: parameter {exc} is missing") from None
     except (ValueError, TypeError) as exc:
         raise ModelFileError(f"{source}: {exc}") from None
     unread = read.unread("parameters")
