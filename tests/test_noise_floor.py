@@ -63,6 +63,19 @@ def test_noise_e_max_is_the_median_of_the_largest_noise_sample():
     assert noise_e_max(0.0, 100) == 0.0
 
 
+def test_noise_e_max_stays_finite_and_rising_for_any_count():
+    """Beyond about 10^16 samples ``1 - p`` rounds to 1 and the normal quantile to inf (it did:
+    ``noise_e_max(1, 1e17)`` was inf). Reference: for large n, ``(1 - 2 Q(t))^n = 1/2`` gives
+    ``Q(t) = ln 2 / (2 n)`` to first order, t from scipy.stats.norm.isf."""
+    from scipy.stats import norm
+
+    counts = [10**k for k in range(0, 301, 10)]
+    floors = [noise_e_max(1.0, n) for n in counts]
+    assert all(np.isfinite(floors)) and all(b > a for a, b in zip(floors, floors[1:]))
+    for n in (10**17, 10**40, 10**300):
+        assert noise_e_max(1.0, n) == pytest.approx(float(norm.isf(np.log(2.0) / (2.0 * n))), rel=1e-9), n
+
+
 @pytest.mark.parametrize("bad", [(-1.0, 10), (float("nan"), 10), (1.0, 0), (1.0, 2.5), (1.0, True)])
 def test_noise_e_max_refuses_what_is_not_a_noise_and_a_count(bad):
     with pytest.raises(ValueError, match="sigma|samples"):

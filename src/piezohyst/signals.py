@@ -207,7 +207,9 @@ def noise_e_max(sigma: float, samples: int) -> float:
     if isinstance(samples, bool) or int(samples) != samples or samples < 1:
         raise ValueError(f"samples must be a positive whole number, got {samples!r}")
     tail = -np.expm1(-np.log(2.0) / float(samples))  # 1 - 2^(-1/samples), exact for large samples
-    return s * float(ndtri(1.0 - 0.5 * tail))
+    # ndtri(1 - p) = -ndtri(p): taken from the small tail, since 1 - p rounds to 1 (and the
+    # quantile to inf) once p < 1e-16, i.e. beyond about 10^16 samples
+    return s * float(-ndtri(0.5 * tail))
 
 
 #: Damping ratios :func:`lightly_damped_mode` tries: lightly damped modes only (a mode damped
