@@ -10,7 +10,7 @@ record size of the issue's "68 ms per P-I fit" figure), each record read, fitted
 same function in a loop, in one process spawned like a worker; the same loop in the bench's own
 process is reported beside it) and then on a LocalCluster of 2 worker processes of one thread
 each. Both are warmed up once (imports, numba's cached kernels on every worker), then
-timed in alternating rounds, best of each. The cluster's start-up is excluded from the ratio and
+timed in 5 alternating rounds (as many as the other rows' paired timings), best of each. The cluster's start-up is excluded from the ratio and
 reported in the note; so are the CPU times (serial process; workers; client and scheduler),
 the machine's load and its ceiling in the same rounds (the speed-up of embarrassingly parallel
 pure-Python arithmetic on the same number of processes), since the machine is shared and no
@@ -50,7 +50,7 @@ def _serial_in_fresh_process(folder: str) -> float:
     return time.perf_counter() - t
 
 
-def bench_fleet(*, n_actuators: int = N_ACTUATORS, workers: int = WORKERS, rounds: int = 3) -> dict:
+def bench_fleet(*, n_actuators: int = N_ACTUATORS, workers: int = WORKERS, rounds: int = 5) -> dict:
     import numpy as np
     import psutil  # a dependency of distributed
 
