@@ -113,6 +113,16 @@ def test_pandas_to_csv_with_its_unnamed_index_column(tmp_path, ref):
     same(ph.load_dataset(p, t_col=0, u_col=1, y_col=2), ref)
 
 
+def test_units_after_a_dot_as_r_and_make_names_write_them(tmp_path, ref):
+    """R's ``make.names`` (and so ``read.csv``) write "time s" as ``time.s``: a known unit after a
+    dot is the column's unit; ``y.1`` (pandas' name for a second ``y``) stays a name."""
+    p = tmp_path / "r.csv"
+    pd.DataFrame({"time.ms": T * 1e3, "u.mV": U * 1e3, "x.nm": Y * 1e3, "y.1": Y}).to_csv(p, index=False)
+    ds = ph.load_dataset(p, y_col="x.nm")
+    same(ds, ref)
+    assert ds.meta["columns"] == {"t": "time.ms", "u": "u.mV", "y": "x.nm"}
+
+
 def test_comment_lines_anywhere_and_blank_lines(tmp_path, ref):
     p = tmp_path / "c.csv"
     body = lines([T, U, Y], ["%.3f", "%.6f", "%.6f"], ",")

@@ -142,7 +142,7 @@ def load_dataset(
     delimiter, decimal comma, UTF-8/UTF-16/cp1252/latin-1), MATLAB ``.mat`` v4 to v7.3, NumPy
     ``.npz``/``.npy``, HDF5, Parquet and Excel/OpenDocument (when pandas' engine for them is
     installed). Values are converted to seconds, volts and micrometres from the units in the
-    names (``Displacement [nm]``, ``Time (ms)``, ``u_mV``) or stated by the file (a line of units
+    names (``Displacement [nm]``, ``Time (ms)``, ``u_mV``, ``time.s``) or stated by the file (a line of units
     under the header, a dSPACE ``Unit`` field); ``meta["units"]`` records each conversion.
 
     Parameters

@@ -59,7 +59,9 @@ _EXPLICIT = [
 ]
 _SLASH = re.compile(r"^(?P<base>[^/]*?\S)\s*/\s*(?P<unit>[^/\s]+)\s*$")
 _IN = re.compile(r"^(?P<base>.*?\S)\s+in\s+(?P<unit>\S+)\s*$", re.IGNORECASE)
-_SUFFIX = re.compile(r"^(?P<base>.*?[^_\s])[_\s]+(?P<unit>[^_\s]+)$")
+#: a unit after an underscore, a space or a dot (``t_s``, ``x um``, ``time.s``, as R and pandas
+#: write names): only a known unit counts, so ``y.1`` (a renamed duplicate) stays a name
+_SUFFIX = re.compile(r"^(?P<base>.*?[^_\s.])[_\s.]+(?P<unit>[^_\s.]+)$")
 _LOOKS_LIKE_UNIT = re.compile(r"^[A-Za-zµμ°%/^.\-·*0-9]{1,5}$")
 
 
