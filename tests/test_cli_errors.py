@@ -87,6 +87,8 @@ def make_inputs(root: Path) -> dict[str, str]:
     text("const.csv", "t,u,y\n" + "\n".join(f"{a:.6g},5,1" for a in t[:50]) + "\n")
     text("yconst.csv", "t,u,y\n" + "\n".join(f"{a:.6g},{b:.6g},1" for a, b in zip(t, u)) + "\n")
     text("tiny.csv", "t,u,y\n" + "\n".join(f"{0.01 * i:g},{i % 3},{0.1 * (i % 3) + 0.01 * i:g}" for i in range(6)) + "\n")
+    # a displacement sensor logged in volts, its unit after an underscore (read as um before)
+    text("sensorv.csv", "t_s,u_V,y_V\n" + "\n".join(f"{a:.6g},{b:.9g},{c:.9g}" for a, b, c in zip(t, u, y)) + "\n")
     np.savez(root / "data.npz", t=t, u=u, y=y)
     f["npz"] = root / "data.npz"
     np.savez(root / "pickled.npz", t=t, u=np.array([{"a": 1}], dtype=object), y=y)
@@ -404,6 +406,14 @@ CASES: list[Case] = [
     C("fleet --workers thousands", "fleet identify {data} --model pi --out {root}/fl1 --workers 100000", "--workers"),
     C("fleet --iterations 0", "fleet identify {data} --model pi --out {root}/fl2 --iterations 0", "--iterations"),
     C("fleet --n 0", "fleet identify {data} --model pi --out {root}/fl3 --n 0", "--n"),
+    # a third round (lab files, by a helper session): before, the sensor's volts were taken as um
+    C("identify a sensor logged in volts", "identify {sensorv} --model pi", "--units y=10"),
+    C("identify --units of an unknown role", "identify {data} --model pi --units q=nm", "--units"),
+    C("identify --units unknown unit", "identify {data} --model pi --units y=furlong", "furlong"),
+    C("identify --units of the wrong kind", "identify {data} --model pi --units y=V", "voltage"),
+    C("identify --units twice, differently", "identify {data} --model pi --units y=nm --units y=um", "--units"),
+    C("fleet a sensor logged in volts", "fleet identify {sensorv} --model pi --out {root}/fl4 --units y=furlong",
+      "furlong"),
 ]
 
 #: Python keyword spelling that must not reach a command-line user

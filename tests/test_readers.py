@@ -123,6 +123,33 @@ def test_units_after_a_dot_as_r_and_make_names_write_them(tmp_path, ref):
     assert ds.meta["columns"] == {"t": "time.ms", "u": "u.mV", "y": "x.nm"}
 
 
+@pytest.mark.parametrize("header", ["t_s,u_V,y_V", "Time_s,Voltage_V,Position_mV", "time s,drive V,sensor V"])
+def test_a_sensor_logged_in_volts_is_refused_and_read_with_its_sensitivity(tmp_path, ref, header):
+    """A known unit after the name is a stated unit also when of the wrong kind: 'Position_mV'
+    was read as um, 1000 times off (found by fuzzing). The message says how to read it: the
+    sensor's sensitivity as a factor (a unit such as 'um' would read volts 1:1 as um)."""
+    p = tmp_path / "s.csv"
+    factor = 1e-3 if "mV" in header else 1.0  # 10 um per volt: the file holds y / 10 volts
+    pd.DataFrame(dict(zip(header.split(","), [T, U, Y / 10.0 / factor]))).to_csv(p, index=False)
+    with pytest.raises(DataError, match=r"a voltage, but it is read as the output displacement.*"
+                                        r"units=\{'y': 10\.0\}"):
+        ph.load_dataset(p)
+    ds = ph.load_dataset(p, units={"y": 10.0 * factor})
+    np.testing.assert_allclose(ds.y, Y, rtol=1e-12, atol=1e-12)
+
+
+def test_units_given_are_refused_whatever_the_file_holds(tmp_path):
+    p = tmp_path / "plain.csv"
+    p.write_text("t,u,y\n0,0,0\n1,1,1\n")
+    with pytest.raises(DataError, match="furlong"):
+        ph.load_dataset(p, units={"y": "furlong"})
+    with pytest.raises(DataError, match="a voltage, but it is read as the output displacement"):
+        ph.load_dataset(p, units={"y": "mV"})
+    with pytest.raises(ValueError, match="furlong"):
+        ph.fleet.FitOptions(units={"y": "furlong"})
+    assert ph.fleet.FitOptions(units={"y": 10.0}).data_options()["units"] == {"y": 10.0}
+
+
 def test_comment_lines_anywhere_and_blank_lines(tmp_path, ref):
     p = tmp_path / "c.csv"
     body = lines([T, U, Y], ["%.3f", "%.6f", "%.6f"], ",")

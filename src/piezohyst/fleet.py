@@ -185,9 +185,10 @@ class FitOptions:
     delay : int or "auto", optional
         Samples by which the output lags the input (default ``"auto"`` with ``select``, 0
         otherwise).
-    u_col, y_col, t_col, fs, resample
+    u_col, y_col, t_col, fs, resample, units
         How to read each file (:func:`~piezohyst.load_dataset`; ``resample``: a time column that
-        is not uniformly sampled is interpolated onto a uniform grid).
+        is not uniformly sampled is interpolated onto a uniform grid; ``units``: a unit or factor
+        per column role, over what the names say, e.g. ``{"y": 10.0}`` for a sensor of 10 um/V).
     history : {"auto", "none"}, optional
         With ``select``: where each actuator's state at the record's start came from
         (:func:`~piezohyst.fit_model`'s ``history``; default ``"auto"`` for ``kind="auto"``).
@@ -206,11 +207,16 @@ class FitOptions:
     fs: float | None = None
     history: str | None = None
     resample: bool = False
+    units: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         from .models.base import kind_class
 
         as_flag("resample", self.resample)  # ("no" was taken as true: found by fuzzing)
+        if self.units is not None:
+            from .data._columns import check_units_arg
+
+            object.__setattr__(self, "units", check_units_arg(self.units, "units") or None)
         as_flag("polish", self.polish)
         kind = self.kind
         if not isinstance(kind, str):
@@ -259,7 +265,7 @@ class FitOptions:
     def data_options(self) -> dict[str, Any]:
         """The keyword arguments of :func:`~piezohyst.load_dataset`."""
         return {"u_col": self.u_col, "y_col": self.y_col, "t_col": self.t_col, "fs": self.fs,
-                "resample": bool(self.resample)}
+                "resample": bool(self.resample), "units": self.units}
 
     def to_dict(self) -> dict[str, Any]:
         """The options as plain data (the fleet's result records them)."""

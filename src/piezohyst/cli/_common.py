@@ -277,6 +277,20 @@ def column(text: str) -> Any:
     return int(text) if text.lstrip("-").isdigit() else text
 
 
+def unit_setting(text: str) -> tuple[str, Any]:
+    """One ``--units`` setting: ``y=nm`` (a unit) or ``y=10`` (a factor to the canonical unit:
+    a sensor of 10 um per volt)."""
+    role, sep, value = text.partition("=")
+    role, value = role.strip(), value.strip()
+    if not sep or role not in ("t", "u", "y") or not value:
+        raise argparse.ArgumentTypeError(f"{text!r} is not ROLE=UNIT with ROLE t, u or y (e.g. y=nm, or y=10 "
+                                         "for a sensor of 10 um per volt)")
+    try:
+        return role, float(value)
+    except ValueError:
+        return role, value
+
+
 def check_sinusoids(fs_list: list[float], cycles: float, dt: float, *, freq_flag: str = "--freq",
                     cycles_flag: str = "--cycles", rate_from: str = "") -> None:
     """Refuse, before allocating, sinusoids that the sample period cannot carry or memory cannot hold."""
@@ -302,6 +316,9 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--y-col", type=column, default=None, help="output column (0-based index or header name)")
     p.add_argument("--t-col", type=column, default=None, help="time column (else --fs)")
     p.add_argument("--fs", type=positive_float, default=None, help="sample rate in Hz when the file has no time column")
+    p.add_argument("--units", type=unit_setting, action="append", default=None, metavar="ROLE=UNIT",
+                   help="the unit of a column, over what its name says (repeatable): t=ms, u=mV, y=nm; or a "
+                        "factor to s, V or um: y=10 for a displacement sensor's volts at 10 um/V")
     p.add_argument("--resample", action="store_true",
                    help="a time column that is not uniformly sampled (dropped or jittered samples) is interpolated "
                         "onto a uniform grid (at --fs, else the median step) instead of refused")
@@ -313,8 +330,13 @@ def data_options(args: argparse.Namespace) -> dict[str, Any]:
     for flag, v in (("--u-col", args.u_col), ("--y-col", args.y_col), ("--t-col", args.t_col)):
         if isinstance(v, int) and v < 0:
             raise UsageError(f"{flag} {v}: columns count from 0")
+    units: dict[str, Any] | None = None
+    for role, value in getattr(args, "units", None) or []:
+        if units is not None and role in units and units[role] != value:
+            raise UsageError(f"--units gives {role} twice ({units[role]!r} and {value!r})")
+        units = {**(units or {}), role: value}
     return {"u_col": args.u_col, "y_col": args.y_col, "t_col": args.t_col, "fs": args.fs,
-            "resample": bool(getattr(args, "resample", False))}
+            "resample": bool(getattr(args, "resample", False)), "units": units}
 
 
 def load_cli_dataset(path: str, args: argparse.Namespace) -> Any:

@@ -17,7 +17,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ._dataset import DataError, Dataset
-from ._units import ROLES, UnitError, conversion, normal_name
+from ._units import ROLES, UnitError, WrongQuantityError, conversion, normal_name
 
 #: names (without their unit, lower case, separators as "_") that identify a column's role
 ALIASES: dict[str, tuple[str, ...]] = {
@@ -209,6 +209,11 @@ def check_units_arg(units: Any, where: str) -> dict[str, Any]:
     bad = [k for k in units if k not in ("t", "u", "y")]
     if bad:
         raise DataError(f"{where}: units keys must be 't', 'u' or 'y', got {bad}")
+    for role, value in units.items():  # an unknown unit or one of the wrong kind, before reading
+        try:
+            conversion(role, role, given=value)
+        except UnitError as exc:
+            raise DataError(f"{where}: {exc}") from None
     return dict(units)
 
 
@@ -300,11 +305,19 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
         try:
             convs[r] = conversion(r, labels[r], stated=src.stated_unit(keys[r]), given=units.get(r),
                                   name=src.unit_name(keys[r]))
+        except WrongQuantityError as exc:
+            if r == "y" and exc.quantity == "voltage":  # a displacement sensor's output, in volts
+                raise DataError(f"{where}: {exc}; give the sensor's sensitivity as a factor to um, e.g. 10 "
+                                f"for 10 um per volt (units={{'y': 10.0}} in Python, --units y=10 at the "
+                                f"command line), or name another column ({flag('y')})") from None
+            raise DataError(f"{where}: {exc}; name the right column ({flag(r)}) or give its unit "
+                            f"(units={{'{r}': ...}} in Python, --units {r}=... at the command line)") from None
         except UnitError as exc:
             # (the hint said units={'u': 'um'} whatever the column: found by fuzzing)
             unit, example = {"t": ("s", "Time [s]"), "u": ("V", "Voltage [V]")}.get(r, ("um", "Displacement [um]"))
-            raise DataError(f"{where}: {exc}; declare the unit (units={{'{r}': '{unit}'}} in Python) or "
-                            f"write a known unit in the name, e.g. '{example}'") from None
+            raise DataError(f"{where}: {exc}; declare the unit (units={{'{r}': '{unit}'}} in Python, --units "
+                            f"{r}={unit} at the command line) or write a known unit in the name, e.g. "
+                            f"'{example}'") from None
         v = convs[r].apply(a)
         if not np.all(np.isfinite(v)):
             i = int(np.argmax(~np.isfinite(v)))

@@ -3,8 +3,9 @@
 A unit is read from the end of a column (or signal) name: ``Displacement [nm]``, ``Time (ms)``,
 ``t/s``, ``x in mm``, ``y_um``, ``u mV``. Brackets, parentheses, a slash and ``in`` state the unit
 explicitly: a unit there that is unknown, or of the wrong kind (a voltage for the displacement),
-is refused. A trailing ``_unit`` or `` unit`` is taken only when it is a known unit of the right
-kind (``u_V`` is volts, ``u_in`` is not a unit). Conversions are exact powers of ten (or 60 for
+is refused. A trailing ``_unit``, `` unit`` or ``.unit`` is taken only when it is a known unit
+(``u_V`` is volts, ``u_in`` is not a unit), and refused when of the wrong kind (``Position_mV``, a
+sensor's voltage, is not read as µm). Conversions are exact powers of ten (or 60 for
 minutes), applied by one multiplication or one division so that ``1.5 nm`` becomes exactly the
 float nearest to ``0.0015 µm``.
 """
@@ -166,6 +167,14 @@ class UnitError(ValueError):
     """A unit that is unknown or of the wrong kind (the caller adds the file name)."""
 
 
+class WrongQuantityError(UnitError):
+    """A known unit of another quantity than the column's role (a voltage read as displacement)."""
+
+    def __init__(self, message: str, quantity: str) -> None:
+        super().__init__(message)
+        self.quantity = quantity
+
+
 def conversion(role: str, column: str, *, stated: str | None = None, given: Any = None,
                name: str | None = None) -> Conversion:
     """The conversion of ``column`` (playing ``role``: t, u, y or r) to its canonical unit.
@@ -192,8 +201,10 @@ def conversion(role: str, column: str, *, stated: str | None = None, given: Any 
         if nu.explicit:
             return _checked(role, column, nu.unit, "header", explicit=True)
         known = _UNITS.get(unit_key(nu.unit))
-        if known is not None and known[0] == quantity:
-            return Conversion(column, nu.unit, canonical, known[1], "header")
+        if known is not None:
+            # a known unit after the name is a stated one, also of the wrong kind: 'Position_mV'
+            # (a sensor's voltage) was read as um, 1000 times off (found by fuzzing)
+            return _checked(role, column, nu.unit, "header", explicit=False)
     return Conversion(column, None, canonical, Fraction(1), "assumed")
 
 
@@ -217,6 +228,6 @@ def _checked(role: str, column: str, unit: str, how: str, *, explicit: bool) -> 
         raise UnitError(f"the unit {unit!r} of {column!r} ({_ROLE_WORDS[role]}) is not one piezohyst knows "
                         f"({describe_units()})")
     if known[0] != quantity:
-        raise UnitError(f"{column!r} is in {unit}, a {known[0]}, but it is read as {_ROLE_WORDS[role]}, "
-                        f"a {quantity} (in {canonical})")
+        raise WrongQuantityError(f"{column!r} is in {unit}, a {known[0]}, but it is read as {_ROLE_WORDS[role]}, "
+                        f"a {quantity} (in {canonical})", known[0])
     return Conversion(column, unit, canonical, known[1], how)
