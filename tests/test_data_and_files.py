@@ -235,9 +235,13 @@ def test_an_unbounded_bouc_wen_loop_is_refused_where_it_would_give_nan():
         bad.compensator(1e-4)
     with pytest.raises(ValueError, match="unbounded"):
         ph.BoucWen.from_dict(bad.to_dict())
-    good = ph.BoucWen(**{**pv.BOUC_WEN, "gamma": -0.05})  # skewed, bounded (beta = 0.072)
+    # skewed, bounded and rising on every branch (beta = 0.072, alpha = 0.472: gamma > -0.004);
+    # gamma = -0.05 (here before) made a loop whose output falls after reversals, refused now
+    good = ph.BoucWen(**{**pv.BOUC_WEN, "gamma": -0.003})
     u = ph.sinusoid(1.0, 2, 0.0, 100.0, 1e-3)
     assert np.isfinite(good.compensator(1e-3).command(good.predict(u, 1e-3))).all()
+    with pytest.raises(ValueError, match="not monotone"):
+        ph.BoucWen(**{**pv.BOUC_WEN, "gamma": -0.05}).compensator(1e-3)
 
 
 def test_a_home_relative_path_is_the_home_folder(tmp_path, monkeypatch):

@@ -1269,8 +1269,11 @@ def _bouc_wen_candidate(sc: _Scorer, d: int, seed: Any, options: dict[str, Any] 
     pred_u = fit.model.predict(sc.u, sc.dt)
     pred = np.concatenate([np.full(d, pred_u[0]), pred_u[: pred_u.size - d]]) if d else pred_u
     score, per = sc.score_model(fit.model, d, pred)
+    unmasked = score
+    if not fit.model.is_invertible:  # its output falls along a branch: eq. (10) has no unique command
+        score, per = math.inf, [math.inf] * len(per)
     c = _Candidate(("bouc-wen", d), f"Bouc-Wen (PSO + refinement); delay {d}", "bouc-wen", score, fit.rmse, 7,
-                   time.perf_counter() - t0, per)
+                   time.perf_counter() - t0, per, unmasked)
     sc.tried.append(c)
     return c
 

@@ -686,7 +686,24 @@ class BoucWen:
     kind: ClassVar[str]
     output_unit: ClassVar[str] = "m"
     dynamic: ClassVar[bool] = True
-    is_invertible: ClassVar[bool] = True  # eq. (10) solves for the command at every sample
+
+    @property
+    def steepest_hysteresis_slope(self) -> float:
+        """The largest ``dh/du`` of eq. (8) on any branch, over ``d1``: ``alpha max(1, 2 beta /
+        (beta + gamma))`` (a branch that starts at the far end of the loop, ``|h| = alpha d1 /
+        (beta + gamma)``, after a reversal; inf where the loop is unbounded). Below 1 the
+        quasi-static output ``d1 u - h`` rises with ``u`` on every branch."""
+        if not self.beta + self.gamma > 0.0:
+            return math.inf
+        return float(self.alpha * max(1.0, 2.0 * self.beta / (self.beta + self.gamma)))
+
+    @property
+    def is_invertible(self) -> bool:
+        """True when eq. (10)'s per-sample solve has one answer: the loop is bounded and its
+        quasi-static output rises on every branch (:attr:`steepest_hysteresis_slope` < 1). With
+        beta = 0.07, gamma = -0.02 /V and alpha = 0.95 (fuzzing) the output fell along part of a
+        branch, the solve stopped unconverged and the exported C code and Python differed by 96 V."""
+        return self.steepest_hysteresis_slope < 1.0
 
     def predict(self, u: Any, dt: float | None = None) -> FloatArray:
         """The displacement in µm (the protocol's common unit): ``simulate(u, dt) * 1e6``."""
@@ -695,13 +712,24 @@ class BoucWen:
     def compensator(self, dt: float | None = None, *, u_range: Any = None,
                     max_slew: float | None = None) -> Any:
         """The hysteresis-estimate feedforward of eq. (10) (rate independent: ``dt`` unused).
-        Refused where the loop is unbounded (``beta + gamma <= 0``: :meth:`check_bounded`)."""
+        Refused where the loop is unbounded (``beta + gamma <= 0``: :meth:`check_bounded`) or its
+        output falls along a branch (:meth:`check_monotone`)."""
         from .bouc_wen_inverse import BoucWenFeedforward
 
         if dt is not None:  # unused, but checked as every kind checks it (dt=-1 passed: found by fuzzing)
             as_scalar("dt", dt, positive=True)
         self.check_bounded()
+        self.check_monotone()
         return BoucWenFeedforward(self, u_range=u_range, max_slew=max_slew)
+
+    def check_monotone(self) -> None:
+        """Raise ValueError unless the quasi-static output rises on every branch (:attr:`is_invertible`)."""
+        slope = self.steepest_hysteresis_slope
+        if not slope < 1.0:
+            raise ValueError(f"the Bouc-Wen loop is not monotone: its output falls along part of a branch after a "
+                             f"reversal (alpha max(1, 2 beta / (beta + gamma)) = {slope:.4g} >= 1 with "
+                             f"alpha={self.alpha:g}, beta={self.beta:g}, gamma={self.gamma:g} 1/V), where eq. (10) "
+                             f"has no unique command")
 
     def check_bounded(self) -> None:
         """Raise ValueError unless ``beta + gamma > 0``: on a long monotone input eq. (8) takes h
