@@ -422,3 +422,52 @@ def test_feedback_gains_that_diverge_on_the_model_are_refused_and_those_below_co
         else:
             with pytest.raises(ValueError, match="diverge on this model"):
                 generate_c(model, u_range=rng_u, kp=kp, ki=ki, fb_dt=dt)
+
+
+@needs_cc
+def test_generated_c_compiles_whatever_the_paths_and_table_names(tmp_path):
+    """Found by fuzzing: a path holding ``*/`` (or ``/*``) in the provenance comment ended it (or
+    failed -Werror=comment); tables named exp.h, NAN.h, main.h clashed with <math.h>/<stdlib.h>,
+    class.h and new.h with C++."""
+    from piezohyst.export.c import export_c
+    from piezohyst.export.tables import write_table
+
+    model = _pi()
+    out = tmp_path / "fw"
+    export_c(model, out, u_range=(0.0, 100.0), provenance=["model file: odd/evil*/m.json", "out: fw/*x */ /*"])
+    res = subprocess.run([CC, *CFLAGS, "-c", "-o", str(tmp_path / "c.o"), str(out / "compensator.c")],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    n = 50
+    t = np.arange(n) * 1e-3
+    names = ["exp", "NAN", "main", "class", "new", "int", "9lives"]
+    for name in names:
+        write_table(tmp_path / f"{name}.h", t, np.linspace(0, 1, n), np.linspace(0, 10, n), dt=1e-3,
+                    comments=["from odd/evil*/m.json", "to tbl/*.h"])
+    includes = "".join(f'#include "{name}.h"\n' for name in names)
+    prog = tmp_path / "use.c"
+    prog.write_text("#include <math.h>\n#include <stdlib.h>\n#include <stdio.h>\n#include <string.h>\n" + includes
+                    + "int main(void) { return 0; }\n")
+    res = subprocess.run([CC, *CFLAGS, "-I", str(tmp_path), "-o", str(tmp_path / "use"), str(prog), "-lm"],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    cxx = shutil.which("g++") or shutil.which("c++")
+    if cxx:
+        res = subprocess.run([cxx, "-x", "c++", "-Wall", "-Wextra", "-Werror", "-I", str(tmp_path), "-fsyntax-only",
+                              str(prog)], capture_output=True, text=True)
+        assert res.returncode == 0, res.stderr
+
+
+def test_c_export_refuses_a_file_name_and_checks_gains_without_a_range(tmp_path):
+    from piezohyst.export.c import export_c, generate_c
+
+    model = _pi()
+    with pytest.raises(ValueError, match="writes a folder"):
+        export_c(model, tmp_path / "comp.c")
+    assert not (tmp_path / "comp.c").exists()
+    # without u_range the gains were not checked at all (the command line always gives a range)
+    with pytest.raises(ValueError, match="diverge on this model"):
+        generate_c(model, kp=1e6, fb_dt=1e-4)
+    with pytest.raises(ValueError, match="diverge") as info:
+        generate_c(model, u_range=(0.0, 100.0), kp=1e6)
+    assert "sample period" not in str(info.value)  # none was given: it said "0 s"

@@ -41,6 +41,13 @@ from .._validation import as_scalar
 _IDENT = re.compile(r"[^A-Za-z0-9_]")
 
 
+def c_comment(text: Any) -> str:
+    """``text`` safe inside a C block comment: ``*/`` would end it and ``/*`` is an error under
+    ``-Wall -Werror`` (a path such as ``odd/evil*/m.json`` in the provenance line broke the
+    build: found by fuzzing)."""
+    return str(text).replace("*/", "* /").replace("/*", "/ *")
+
+
 def c_number(x: float) -> str:
     """A C double literal that reads back as exactly ``x`` (17 significant digits)."""
     v = float(x)
@@ -172,6 +179,11 @@ def mean_slope(model: Any, dt: float | None, u_range: tuple[float, float]) -> fl
     return g if math.isfinite(g) and g > 0.0 else None
 
 
+#: The command range on which compiled-in gains are checked when none is given (as ``piezohyst
+#: export``'s default amplifier range); a Python call without one skipped the check (fuzzing).
+DEFAULT_CHECK_RANGE = (0.0, 100.0)
+
+
 def _check_feedback_gains(model: Any, dt: float | None, rng: tuple[float, float], kp: float, ki: float,
                           fdt: float) -> None:
     """Refuse compiled-in gains that diverge on any stage the model describes: with the
@@ -186,9 +198,11 @@ def _check_feedback_gains(model: Any, dt: float | None, rng: tuple[float, float]
         return
     a, b = kp * g, ki * fdt * g
     if 2.0 * a + b >= 2.0:
+        gains = (f"kp={kp:g} V/um, ki={ki:g} V/(um s) and a sample period of {fdt:g} s" if ki else
+                 f"kp={kp:g} V/um")  # (without an integral no period was given: "0 s", found by fuzzing)
         raise ValueError(
-            f"the feedback gains diverge on this model: with kp={kp:g} V/um, ki={ki:g} V/(um s) and a "
-            f"sample period of {fdt:g} s, on the model's mean slope over {rng[0]:g}..{rng[1]:g} V ({g:.4g} um/V) "
+            f"the feedback gains diverge on this model: with {gains}, "
+            f"on the model's mean slope over {rng[0]:g}..{rng[1]:g} V ({g:.4g} um/V) "
             f"the loop gain 2 kp g + ki dt g is {2.0 * a + b:.4g}, and a loop that measures one sample after "
             f"its command is stable only below 2 (less with delay or resonance). Lower the gains"
             + (", or check the sample rate (in Hz)" if b > a else ""))
@@ -240,9 +254,9 @@ def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, flo
     fdt = fb_dt if fb_dt is not None else dt
     if ki != 0.0 and fdt is None:
         raise ValueError("integral feedback needs the sample period: give fb_dt (or dt)")
-    if (kp or ki) and rng is not None:
-        _check_feedback_gains(model, dt if model.dynamic else None, rng, float(kp), float(ki),
-                              float(fdt) if fdt is not None else 0.0)
+    if kp or ki:  # without a command range, on the command line's default one (0..100 V)
+        _check_feedback_gains(model, dt if model.dynamic else None, rng if rng is not None else DEFAULT_CHECK_RANGE,
+                              float(kp), float(ki), float(fdt) if fdt is not None else 0.0)
     em = CEmitter()
     for reserved in ("ph_last", "ph_have_last", "ph_limit", "ph_fb_kp", "ph_fb_ki", "ph_fb_int", "ph_fb_sat",
                      "ph_fb_ref", "ph_fb_pos", "compensator_reset", "compensator_step", "compensator_step_fb",
@@ -252,10 +266,10 @@ def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, flo
     rest = 0.0 if rng is None else min(max(0.0, rng[0]), rng[1])
     head = ["/*", " * compensator: the feedforward of a piezohyst model, as C99 (no dynamic memory, libm only).", " *"]
     for line in provenance or []:
-        head.append(f" * {line}")
+        head.append(f" * {c_comment(line)}")
     period = (f"{float(dt):.17g} s (the model has dynamics: call it at exactly this rate)"  # type: ignore[arg-type]
               if rate_bound else "any (the compensator is rate independent)")
-    head += [f" * model kind: {kind}; compensator: {type(comp).__name__}",
+    head += [f" * model kind: {c_comment(kind)}; compensator: {type(comp).__name__}",
              f" * command range: {'%g .. %g V (clipped)' % rng if rng else 'none (not clipped)'}; "
              f"step limit: {'%g V per sample' % max_slew if max_slew else 'none'}",
              f" * sample period: {period}",
@@ -388,6 +402,10 @@ def export_c(model: Any, directory: Any, *, force: bool = False, **options: Any)
     out = Path(directory)
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out} exists and is not a directory")
+    if not out.exists() and out.suffix.lower() in (".c", ".h", ".cc", ".cpp", ".hpp", ".hh"):
+        # (--out comp.c made a folder named comp.c holding compensator.c: found by fuzzing)
+        raise ValueError(f"{out}: the C export writes a folder (compensator.h and compensator.c into it); "
+                         f"give a folder name, not a {out.suffix} file name")
     h_path, c_path = out / "compensator.h", out / "compensator.c"
     for p in (h_path, c_path):
         check_writable(p, force)

@@ -51,10 +51,28 @@ C_KEYWORDS = frozenset(
     "while _Bool _Complex _Imaginary".split())
 
 
+#: Names a table must not take either: C++'s keywords (the header is included from C++ too) and
+#: what a firmware's C file includes beside it (<math.h>, <stdlib.h>, <stdio.h>, <string.h>:
+#: exp.h, NAN.h and main.h did not compile, class.h and new.h not as C++; found by fuzzing).
+C_TAKEN = C_KEYWORDS | frozenset(
+    "alignas alignof and and_eq asm bitand bitor bool catch char16_t char32_t char8_t class compl concept "
+    "consteval constexpr constinit const_cast co_await co_return co_yield decltype delete dynamic_cast explicit "
+    "export false friend mutable namespace new noexcept not not_eq nullptr operator or or_eq private protected "
+    "public reinterpret_cast requires static_assert static_cast template this thread_local throw true try typeid "
+    "typename using virtual wchar_t xor xor_eq "
+    "main errno NAN INFINITY HUGE_VAL EOF NULL EXIT_SUCCESS EXIT_FAILURE RAND_MAX stdin stdout stderr "
+    "acos asin atan atan2 cos sin tan acosh asinh atanh cosh sinh tanh exp exp2 expm1 frexp ldexp log log10 "
+    "log1p log2 logb modf scalbn cbrt fabs hypot pow sqrt erf erfc lgamma tgamma ceil floor nearbyint rint "
+    "round trunc fmod remainder copysign nan nextafter fdim fmax fmin fma isnan isinf isfinite signbit "
+    "abs labs div rand srand malloc calloc realloc free exit abort atoi atof atol strtod qsort bsearch "
+    "printf fprintf sprintf snprintf puts putchar getchar fopen fclose fread fwrite "
+    "memcpy memmove memset memcmp strlen strcpy strncpy strcmp strncmp strcat strchr strstr".split())
+
+
 def c_identifier(stem: str) -> str:
-    """A C identifier from a file name's stem (never a keyword)."""
+    """A C identifier from a file name's stem (never a C or C++ keyword nor a standard library name)."""
     name = re.sub(r"[^A-Za-z0-9_]", "_", stem).strip("_") or "table"
-    return "table_" + name if name[0].isdigit() or name in C_KEYWORDS else name
+    return "table_" + name if name[0].isdigit() or name in C_TAKEN else name
 
 
 def write_table(path: Any, t: FloatArray, x_d: FloatArray, u: FloatArray, *, dt: float,
@@ -74,7 +92,9 @@ def write_table(path: Any, t: FloatArray, x_d: FloatArray, u: FloatArray, *, dt:
     dt = as_scalar("dt", dt, positive=True)
     if isinstance(comments, str):
         comments = [comments]
-    comments = [str(c).replace("*/", "* /") for c in comments]
+    from .c import c_comment
+
+    comments = [c_comment(c) for c in comments]
     meta = dict(meta or {})
 
     if fmt in (".csv", ".txt"):
