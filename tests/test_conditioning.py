@@ -103,3 +103,23 @@ def test_the_sweep_covers_the_range_inside_the_step_limit(memory_stage):
     assert np.abs(np.diff(v)).max() <= lim.max_step
     # each leg lasts at least CONDITIONING_LEG_S
     assert v.size >= 2 * ctl.CONDITIONING_LEG_S / plant.dt
+
+
+@pytest.mark.slow
+def test_a_conditioned_controller_run_without_the_sweep_from_the_bottom_says_what_it_assumes():
+    """docs/tutorial.md ran ``ctl.track(ref, feedback=False, conditioning=False)`` on the
+    VirtualRig, whose reset() restores the de-energised state: the model (identified after the
+    sweep) started off by its remanence, 47 % e_max, and only a clipping warning said anything."""
+    plant = ph.VirtualRig(seed=0)
+    ctl = ph.commission(plant, conditioning=True)
+    ref = ph.sinusoid(2.0, 2, 0.3, 2.0, plant.dt)
+    with pytest.warns(UserWarning, match="identified after the conditioning sweep"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ph.ClippingWarning)
+            ctl.track(ref, feedback=False, learning=False, conditioning=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # with the sweep: nothing to say
+        ctl.track(ref, feedback=False, learning=False)
+    # a short, readable repr in a terminal (the dataclasses' printed 134,000 and 123,000 characters)
+    assert len(repr(ctl)) < 400 and "VirtualRig" in repr(ctl)
+    assert len(repr(ctl.fit)) < 600 and repr(ctl.fit).startswith("FitResult(")

@@ -28,6 +28,8 @@ from ._version import __version__ as __version__  # re-exported
 _LAZY: dict[str, str] = {
     "LoopFigures": "analysis", "loop_figures": "analysis",
     "CommissionedController": "commissioning", "commission": "commissioning",
+    "AmplifierSlewWarning": "commissioning",
+    "NotMonotoneWarning": "identify.monotone", "DeadRangeWarning": "identify.monotone",
     "BoucWenFeedforward": "control", "InversePIFeedforward": "control", "PID": "control",
     "TrackingResult": "control", "UnstableLoopError": "control", "track": "control",
     "DataError": "data", "Dataset": "data", "load_dataset": "data", "load_piezo_dbo": "data",
@@ -50,7 +52,7 @@ _LAZY: dict[str, str] = {
     "Progress": "progress",
 }
 _SUBMODULES = ("signals", "models", "identify", "control", "data", "modelio", "plots", "experiments", "export",
-               "fleet")
+               "fleet", "commissioning")
 
 __all__ = sorted([*_LAZY, *_SUBMODULES, "__version__"])
 
@@ -90,7 +92,9 @@ sys.modules[__name__].__class__ = _Package
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from . import control, data, experiments, export, fleet, identify, modelio, models, plots, signals  # noqa: F401
     from .analysis import LoopFigures, loop_figures  # noqa: F401
-    from .commissioning import CommissionedController, commission  # noqa: F401
+    from . import commissioning  # noqa: F401
+    from .commissioning import AmplifierSlewWarning, CommissionedController, commission  # noqa: F401
+    from .identify.monotone import DeadRangeWarning, NotMonotoneWarning  # noqa: F401
     from .control import (BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult,  # noqa: F401
                           UnstableLoopError, track)
     from .data import DataError, Dataset, load_dataset, load_piezo_dbo, save_dataset  # noqa: F401

@@ -680,6 +680,14 @@ class CommissionedController:
             self.limits = CommandLimits.for_range(rng)
         return self.limits
 
+    def __repr__(self) -> str:
+        """One line (the dataclass's own repr printed the fit and the identification run in full,
+        134,000 characters); :meth:`describe` has it all as data."""
+        ki = f"{self.tuning.ki:.4g} 1/s" if self.tuning else "none"
+        return (f"CommissionedController(plant={type(self.plant).__name__}, model={kind_of(self.model)}, "
+                f"structure={self.fit.info.get('chosen', self.fit.method)!r}, delay={self.delay}, ki={ki}, "
+                f"mode={self.mode!r}, conditioning={self.conditioning})")
+
     def describe(self) -> dict[str, Any]:
         """The controller in plain data: model kind and structure, fit and hold-out errors, delay, gains."""
         m = self.model
@@ -824,6 +832,17 @@ class CommissionedController:
         for name, flag in (("feedback", feedback), ("learning", learning), ("conditioning", conditioning)):
             as_flag(name, flag, default_ok=True)  # (feedback="no" ran with feedback)
         cond = self.conditioning if conditioning is None else bool(conditioning)
+        lim = self._limits()
+        if self.conditioning and not cond and not lim.rest > lim.low + 1e-9 * lim.span:
+            # from a rest at the bottom the run rises straight from whatever state the stage is in
+            # (from a rest above it, the lead-in goes down to the bottom first, which wipes the
+            # memory out as the sweep does). The tutorial's run so, on the VirtualRig, whose reset()
+            # restores the de-energised state, missed by 47 % of span and said only that commands clipped
+            warnings.warn("this controller's model was identified after the conditioning sweep and knows the "
+                          "stage's state only after one; this run without it rises from rest from whatever state "
+                          "the stage is in: a stage that came down to rest keeps the sweep's remanence, but one "
+                          "reset to its de-energised state (a simulator's reset()) starts off by that remanence",
+                          UserWarning, stacklevel=2)
         if feedback and self.mode != "buffered" and self.tuning is None:
             # (it ran without feedback and said nothing: found by fuzzing)
             raise ValueError("feedback=True, but this controller's feedback was never tuned (commissioned with "

@@ -62,6 +62,7 @@ class TuningResult:
     verification: tuple[dict[str, Any], ...] = ()
 
     def pid(self, dt: float, **kw: Any) -> PID:
+        """A :class:`~piezohyst.control.PID` with these gains at sample period ``dt`` (``kw``: its limits)."""
         return PID(self.kp, self.ki, self.kd, dt, **kw)
 
 

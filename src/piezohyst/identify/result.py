@@ -235,6 +235,21 @@ class FitResult:
                         model_name=f"{kind} model", data_label=data_label, title=head)
         return figure_result(arts[0].axes.figure)
 
+    def __repr__(self) -> str:
+        """One line: the kind, the errors, the delay, how many warnings (the dataclass's own repr
+        printed every candidate and array, 123,000 characters for a commissioned stage's fit)."""
+        kind = getattr(self.model, "kind", type(self.model).__name__)
+        hold = self.info.get("holdout") or {}
+        parts = [f"{kind}", f"rmse={self.rmse:.4g}", f"method={self.method!r}", f"n_samples={self.n_samples}",
+                 f"delay={self.delay}"]
+        if isinstance(hold.get("percent_of_span"), (int, float)):
+            parts.append(f"holdout={hold['percent_of_span']:.3g} % of span")
+        chosen = self.info.get("chosen")
+        if chosen and str(chosen) not in self.method:
+            parts.append(f"chosen={chosen!r}")
+        parts.append(f"warnings={len(self.warnings)}")
+        return f"FitResult({', '.join(parts)})"
+
     def _repr_html_(self) -> str:
         """An HTML summary for Jupyter: the fit's figures, its warnings, the candidates tried
         and the model."""
