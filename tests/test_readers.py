@@ -150,6 +150,22 @@ def test_units_given_are_refused_whatever_the_file_holds(tmp_path):
     assert ph.fleet.FitOptions(units={"y": 10.0}).data_options()["units"] == {"y": 10.0}
 
 
+@pytest.mark.parametrize("header, role, pick", [
+    ("Time,U,X,T", "time", {"t_col": "Time"}),  # T, a temperature, was taken for the time (dt 0.01 s)
+    ("Time [s],Command,Drive Voltage [V],Position [um]", "input voltage", {"u_col": "Drive Voltage [V]"}),
+])
+def test_columns_named_by_two_aliases_of_one_role_are_refused_until_one_is_named(tmp_path, ref, header, role, pick):
+    """The first alias in the list used to win silently (found by fuzzing)."""
+    p = tmp_path / "two.csv"
+    cols = header.split(",")
+    values = {"Time": T, "U": U, "X": Y, "T": 25.0 + 0.01 * np.arange(T.size), "Time [s]": T, "Command": 1.01 * Y,
+              "Drive Voltage [V]": U, "Position [um]": Y}
+    pd.DataFrame({c: values[c] for c in cols}).to_csv(p, index=False)
+    with pytest.raises(DataError, match=f"several columns could be the {role}"):
+        ph.load_dataset(p)
+    same(ph.load_dataset(p, **pick), ref)
+
+
 def test_comment_lines_anywhere_and_blank_lines(tmp_path, ref):
     p = tmp_path / "c.csv"
     body = lines([T, U, Y], ["%.3f", "%.6f", "%.6f"], ",")
@@ -407,7 +423,9 @@ def test_sample_rate_that_disagrees_with_the_time_column(tmp_path, ref):
         ("a,b,c\n0,1,2\n0.1,2,3\n", (r"cannot tell which column is the input voltage u; name it \(u_col= in Python, "
                                      r"--u-col at the command line\); the columns are \['a', 'b', 'c'\]")),
         ("0 1 2\n1 2 3\n", r"cannot tell which column is the input voltage u.*no header line"),
-        ("t,v,x,u\n0,1,2,3\n0.1,2,3,4\n", None),  # u wins over v by its first alias: loads
+        # u and v are both names of the voltage: refused as two of one name are (u won by coming
+        # first in the alias list; so did a temperature 'T' over 'Time': found by fuzzing)
+        ("t,v,x,u\n0,1,2,3\n0.1,2,3,4\n", r"several columns could be the input voltage u \('u', 'v'\)"),
         # found by fuzzing: column classes voted from rows that each break one of them
         ("t,t,t,t,t\n0.0,0.0,0.0,\u221e,0.0\n0.0,0.0,0.0,0.0,\u221e", r"no table of numbers found in the first 3 lines"),
     ],
@@ -764,3 +782,15 @@ def test_a_unit_spelt_mega_is_not_read_as_milli(tmp_path):
         with pytest.raises(ph.DataError, match=f"'{wrong}' .* reads as mega .* for milli write 'm{wrong[1]}'"):
             ph.load_dataset(p, units=units)
     assert ph.load_dataset(p, units={"u": "MV"}).u.max() == pytest.approx(1e-3 * float(np.max(50 + 50 * np.sin(2 * np.pi * t))))
+
+
+@pytest.mark.parametrize("unit, factor", [("0.1 um", 0.1), ("x10 nm", 0.01), ("10^-6 m", 1.0)])
+def test_a_scaled_unit_is_refused_with_its_factor_and_read_with_it(tmp_path, ref, unit, factor):
+    """'Displacement [0.1 um]' was taken for a name without a unit, and its values for um (10 and
+    100 times off when the column was named; found by fuzzing)."""
+    p = tmp_path / "scaled.csv"
+    pd.DataFrame({"Time [s]": T, "Voltage [V]": U, f"Displacement [{unit}]": Y / factor}).to_csv(p, index=False)
+    for kw in ({}, {"y_col": 2}):
+        with pytest.raises(DataError, match=rf"is a scaled unit.*units=\{{'y': {factor:g}\}}"):
+            ph.load_dataset(p, **kw)
+    same(ph.load_dataset(p, y_col=2, units={"y": factor}), ref)

@@ -17,7 +17,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ._dataset import DataError, Dataset
-from ._units import ROLES, UnitError, WrongQuantityError, conversion, normal_name
+from ._units import ROLES, ScaledUnitError, UnitError, WrongQuantityError, conversion, normal_name
 
 #: names (without their unit, lower case, separators as "_") that identify a column's role
 ALIASES: dict[str, tuple[str, ...]] = {
@@ -106,16 +106,18 @@ def match_name(given: str, names: Sequence[tuple[Key, Sequence[str]]]) -> list[K
 
 def guess_by_alias(names: Sequence[tuple[Key, Sequence[str]]], role: str, where: str,
                    describe: Any = str) -> Key | None:
-    """The one key whose name is an alias of ``role`` (first alias wins); None if none is."""
+    """The one key whose name is an alias of ``role``; None if none is. Two columns named by
+    different aliases are as ambiguous as two of one name: ``Time`` and ``T`` (a temperature)
+    took ``T`` for the time, and ``Command`` (a position setpoint) won over ``Drive Voltage [V]``,
+    the first alias in the list winning (found by fuzzing)."""
     normed = [(k, {normal_name(n) for n in labels}) for k, labels in names]
-    for alias in ALIASES[role]:
-        hits = list(dict.fromkeys(k for k, ns in normed if alias in ns))
-        if len(hits) == 1:
-            return hits[0]
-        if len(hits) > 1:
-            which = ", ".join(repr(describe(h)) for h in hits[:6])
-            raise DataError(f"{where}: several columns could be {ROLE_WORDS[role]} ({which}); "
-                            f"name one ({flag(role)})")
+    hits = list(dict.fromkeys(k for alias in ALIASES[role] for k, ns in normed if alias in ns))
+    if len(hits) == 1:
+        return hits[0]
+    if len(hits) > 1:
+        which = ", ".join(repr(describe(h)) for h in hits[:6])
+        raise DataError(f"{where}: several columns could be {ROLE_WORDS[role]} ({which}); "
+                        f"name one ({flag(role)})")
     return _guess_in_triples(normed, role, where, describe)
 
 
@@ -312,6 +314,8 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
                                 f"command line), or name another column ({flag('y')})") from None
             raise DataError(f"{where}: {exc}; name the right column ({flag(r)}) or give its unit "
                             f"(units={{'{r}': ...}} in Python, --units {r}=... at the command line)") from None
+        except ScaledUnitError as exc:  # its message says what to give
+            raise DataError(f"{where}: {exc}") from None
         except UnitError as exc:
             # (the hint said units={'u': 'um'} whatever the column: found by fuzzing)
             unit, example = {"t": ("s", "Time [s]"), "u": ("V", "Voltage [V]")}.get(r, ("um", "Displacement [um]"))
