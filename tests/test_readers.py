@@ -794,3 +794,64 @@ def test_a_scaled_unit_is_refused_with_its_factor_and_read_with_it(tmp_path, ref
         with pytest.raises(DataError, match=rf"is a scaled unit.*units=\{{'y': {factor:g}\}}"):
             ph.load_dataset(p, **kw)
     same(ph.load_dataset(p, y_col=2, units={"y": factor}), ref)
+
+
+_LVM_HEAD = """LabVIEW Measurement\t
+Writer_Version\t2
+Reader_Version\t2
+Separator\tTab
+Decimal_Separator\t,
+Multi_Headings\tNo
+X_Columns\tOne
+Time_Pref\tRelative
+Date\t2024/03/05
+Time\t14:00:00,000
+***End_of_Header***\t
+\t
+Channels\t2\t
+Samples\t{n}\t{n}\t
+Date\t2024/03/05\t2024/03/05\t
+Time\t14:00:00,000\t14:00:00,000\t
+Y_Unit_Label\tVolts\tmm\t
+X_Dimension\tTime\tTime\t
+X0\t0,0000000000000000E+0\t0,0000000000000000E+0\t
+Delta_X\t{dt}\t{dt}\t
+***End_of_Header***\t
+X_Value\tVoltage\tDisplacement\tComment
+"""
+
+
+@pytest.mark.parametrize("row_end", ["", "\t"])
+def test_labview_lvm_units_and_comment_column(tmp_path, ref, row_end):
+    """LabVIEW states the units in its segment header (Y_Unit_Label) and names a Comment column
+    its rows leave out (or end with a tab for): the mm were read as um, 1000 times off, and
+    without the tab the columns could not be named (found by fuzzing)."""
+    p = tmp_path / "run.lvm"
+    dt = float(T[1] - T[0])
+    rows = "".join(f"{a:.9e}\t{b:.12e}\t{c:.12e}{row_end}\n".replace(".", ",") for a, b, c in zip(T, U, Y / 1000.0))
+    p.write_text(_LVM_HEAD.format(n=T.size, dt=f"{dt:.6f}".replace(".", ",")) + rows)
+    ds = ph.load_dataset(p)
+    assert ds.meta["columns"] == {"t": "X_Value", "u": "Voltage", "y": "Displacement"}
+    assert ds.meta["units"]["y"]["unit"] == "mm"
+    np.testing.assert_allclose(ds.y, Y, rtol=1e-9, atol=1e-9)
+    same(ph.load_dataset(p, u_col="Voltage", y_col="Displacement"), ref)
+
+
+def test_a_header_written_as_a_comment_by_numpy_savetxt_and_one_with_a_trailing_delimiter(tmp_path, ref):
+    """numpy.savetxt writes its header as '# ...': the file 'had no header line', and read by
+    column number its nm were taken for um; a header line ending in a delimiter its rows do not
+    have was refused the same way (found by fuzzing)."""
+    p = tmp_path / "np.csv"
+    np.savetxt(p, np.column_stack([T, U, Y * 1000.0]), delimiter=",", header="Time [s],Voltage [V],Displacement [nm]")
+    ds = ph.load_dataset(p)
+    assert ds.meta["columns"] == {"t": "Time [s]", "u": "Voltage [V]", "y": "Displacement [nm]"}
+    same(ds, ref)
+    q = tmp_path / "trailing.csv"
+    q.write_text("Time [s],Voltage [V],Displacement [nm],\n"
+                 + "".join(f"{a:.17g},{b:.17g},{c:.17g}\n" for a, b, c in zip(T, U, Y * 1000.0)))
+    same(ph.load_dataset(q), ref)
+    # a comment of numbers, or of one field, above headerless data is no header
+    r = tmp_path / "nohead.csv"
+    r.write_text("# 1,2,3\n" + "".join(f"{a:.17g},{b:.17g},{c:.17g}\n" for a, b, c in zip(T, U, Y)))
+    with pytest.raises(DataError, match="no header line"):
+        ph.load_dataset(r)

@@ -114,6 +114,7 @@ class Layout:
     trailing: bool  # every row ends with a delimiter (an empty last field, not offered)
     saved_meta: dict[str, Any] = field(default_factory=dict)
     header_mismatch: str | None = None
+    units_line: bool = False  # ``units`` came from the line under the header (else a LabVIEW label)
 
 
 def detect_encoding(head: bytes) -> tuple[str, int]:
@@ -273,6 +274,7 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
 
     names: list[str] | None = None
     units: list[str] | None = None
+    units_line = False  # the units stand in the line under the header
     header_line: int | None = None
     mismatch: str | None = None
     before = content[:start]
@@ -283,17 +285,46 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     def fits(fs_: list[str]) -> bool:
         return len(fs_) == n or (trailing and len(fs_) == n - 1)
 
+    def comment_header() -> list[str] | None:
+        """numpy.savetxt writes its header as a comment (``# Time [s],Voltage [V],...``) right
+        above the data: taken for one where the file has none (it said "no header line", and
+        read by number its units were lost: found by fuzzing)."""
+        li = first_data - 1
+        while li >= 0 and not lines[li].strip():
+            li -= 1
+        if li < 0 or not lines[li].strip().startswith("#") or lines[li].strip().startswith("# meta:"):
+            return None
+        text = lines[li].strip().lstrip("#").strip()
+        fs_ = [f.strip().strip('"').strip() for f in _split(text, delim)]
+        if not fits(fs_) or not all(fs_[:n - int(trailing)]) or all(_cls(f, dec) == "n" for f in fs_):
+            return None
+        return fs_
+
+    def without_extra_field(fs_: list[str]) -> list[str]:
+        """A header with one field more than the rows: an empty one (a trailing delimiter on the
+        header line alone) or LabVIEW's ``Comment`` column, which its rows leave out."""
+        if len(fs_) == n + int(not trailing) and fs_[-1].strip().lower() in ("", "comment"):
+            return fs_[:-1] if not trailing else fs_
+        return fs_
+
     if before:
-        cand = fields_of(before[-1])
+        cand = without_extra_field(fields_of(before[-1]))
         if fits(cand):
             if len(before) >= 2 and all(is_unit(f) for f in cand) and fits(fields_of(before[-2])) and \
                     not all(is_unit(f) for f in fields_of(before[-2])):
                 units, names, header_line = cand, fields_of(before[-2]), before[-2] + 1
+                units_line = True
             else:
                 names, header_line = cand, before[-1] + 1
         else:
             mismatch = (f"line {before[-1] + 1} has {len(cand)} fields but the data rows have "
                         f"{n - int(trailing)}")
+    if names is None and not before:
+        names = comment_header()
+        if names is not None:
+            header_line = None  # a comment: the data start right after it
+    if names is not None and units is None:
+        units = _labview_units(names, [fields_of(li) for li in before])
     if names is not None:
         names = names + [""] * (n - len(names))
         if units is not None:
@@ -303,15 +334,33 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     if names is not None and len(offered) >= 2 and names[0] in ("", "Unnamed: 0"):
         offered = offered[1:]
         index_dropped = True
-    preamble = len(before) - (0 if names is None else 2 if units is not None else 1)
+    # the lines before the data that are neither header nor units line (a header in a comment is
+    # not among them; LabVIEW's units stand in its segment header, itself preamble)
+    preamble = len(before) - (0 if names is None or header_line is None else 2 if units_line else 1)
 
     rows_text = "\n".join(lines[li] for li in content[start:])
     row_bytes = (len(rows_text.encode(encoding, errors="replace")) + 1) / max(1, len(content) - start)
     offset = bom + len("\n".join(lines[:first_data]).encode(encoding, errors="replace")) + (1 if first_data else 0)
     return Layout(encoding=encoding, bom=bom, delimiter=delim, decimal=dec, skip=first_data, nfields=n,
-                  names=names, header_line=header_line, units=units, offered=offered, preamble=preamble,
+                  names=names, header_line=header_line, units=units, units_line=units_line, offered=offered,
+                  preamble=preamble,
                   index_dropped=index_dropped, bytes_per_row=max(2.0, float(row_bytes)),
                   data_offset=offset, trailing=trailing, saved_meta=saved_meta, header_mismatch=mismatch)
+
+
+def _labview_units(names: list[str], header_lines: list[list[str]]) -> list[str] | None:
+    """The units a LabVIEW measurement file (``.lvm``) states in its segment header
+    (``Y_Unit_Label  Volts  mm``, one per channel; ``X_Dimension  Time`` for the ``X_Value``
+    column): they were ignored, and a displacement in mm was read as um (found by fuzzing)."""
+    labels = [f for f in header_lines if f[:1] == ["Y_Unit_Label"]]
+    if not labels:
+        return None
+    y_units = labels[-1][1:]
+    if names and names[0].strip().lower() == "x_value":
+        dims = [f for f in header_lines if f[:1] == ["X_Dimension"]]
+        x_unit = "s" if dims and dims[-1][1:2] and dims[-1][1].strip().lower() == "time" else ""
+        return [x_unit, *y_units]
+    return list(y_units)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -357,8 +406,10 @@ class TextSource:
         }
         if lay.header_line is not None:
             self.meta["header_line"] = lay.header_line
-        if lay.units is not None:
+        if lay.units is not None and lay.units_line:
             self.meta["units_line"] = lay.header_line + 1 if lay.header_line else None
+        elif lay.units is not None:
+            self.meta["units_from"] = "the LabVIEW segment header (Y_Unit_Label)"
         if lay.preamble:
             self.meta["skipped_lines"] = lay.preamble
         if lay.index_dropped:
