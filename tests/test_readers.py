@@ -855,3 +855,25 @@ def test_a_header_written_as_a_comment_by_numpy_savetxt_and_one_with_a_trailing_
     r.write_text("# 1,2,3\n" + "".join(f"{a:.17g},{b:.17g},{c:.17g}\n" for a, b, c in zip(T, U, Y)))
     with pytest.raises(DataError, match="no header line"):
         ph.load_dataset(r)
+
+
+def test_clock_times_in_a_text_file_are_seconds_from_the_first_sample(tmp_path, ref):
+    """A CSV's datetime column was "not a number" (a spreadsheet's or Parquet's were read), also
+    with the sample rate given (found by fuzzing)."""
+    when = pd.Timestamp("2024-03-05 14:00:00") + pd.to_timedelta(T - T[0], unit="s")
+    p = tmp_path / "stamped.csv"
+    p.write_text("Timestamp,Voltage [V],Displacement [um]\n" + "".join(
+        f"{w.strftime('%Y-%m-%d %H:%M:%S.%f')},{b:.17g},{c:.17g}\n" for w, b, c in zip(when, U, Y)))
+    ds = ph.load_dataset(p)
+    assert ds.meta["clock_times"] == ["Timestamp"]
+    np.testing.assert_allclose(ds.t, T - T[0], atol=1e-9)
+    np.testing.assert_allclose(ds.u, U)
+    q = tmp_path / "date_time.csv"  # a logger's date and clock time in columns of their own
+    q.write_text("Date;Time;Voltage [V];Displacement [um]\n" + "".join(
+        f"{w.strftime('%Y-%m-%d')};{w.strftime('%H:%M:%S.%f')};{b:.17g};{c:.17g}\n" for w, b, c in zip(when, U, Y)))
+    np.testing.assert_allclose(ph.load_dataset(q).y, Y)
+    lines = p.read_text().splitlines()
+    lines[5] = "garbled" + lines[5][lines[5].index(","):]
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError, match=r"line 6, 'garbled' in 'Timestamp' is not a clock time"):
+        ph.load_dataset(p)

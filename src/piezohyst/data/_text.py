@@ -115,6 +115,7 @@ class Layout:
     saved_meta: dict[str, Any] = field(default_factory=dict)
     header_mismatch: str | None = None
     units_line: bool = False  # ``units`` came from the line under the header (else a LabVIEW label)
+    text_columns: tuple[int, ...] = ()  # columns whose rows hold text, not numbers (clock times?)
 
 
 def detect_encoding(head: bytes) -> tuple[str, int]:
@@ -343,7 +344,7 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     offset = bom + len("\n".join(lines[:first_data]).encode(encoding, errors="replace")) + (1 if first_data else 0)
     return Layout(encoding=encoding, bom=bom, delimiter=delim, decimal=dec, skip=first_data, nfields=n,
                   names=names, header_line=header_line, units=units, units_line=units_line, offered=offered,
-                  preamble=preamble,
+                  text_columns=tuple(j for j, c in enumerate(cols) if c == "x"), preamble=preamble,
                   index_dropped=index_dropped, bytes_per_row=max(2.0, float(row_bytes)),
                   data_offset=offset, trailing=trailing, saved_meta=saved_meta, header_mismatch=mismatch)
 
@@ -488,28 +489,67 @@ class TextSource:
         rows = self.estimate_rows()
         check_size(self.where, rows * len(cols) * 8 * 2.5 + 4 * HEAD_BYTES, limit,
                    f"reading {len(cols)} columns of about {rows:,.0f} rows")
-        df = self._parse(cols)
+        clocks = [k for k in cols if k in self.lay.text_columns and self._clock_times(k)]
+        df = self._parse(cols, text=clocks)
         out = []
         for k in cols:
             col = df[f"c{k}"]
+            if k in clocks:
+                out.append(self._seconds(k, col))
+                continue
             if col.dtype.kind not in "fiu":  # pragma: no cover - dtype=float64 is asked for
                 raise DataError(f"{self.where}: column {self.label(k)!r} is not numeric")
             out.append(col.to_numpy(dtype=np.float64))
         return out
+
+    def _clock_times(self, key: int) -> bool:
+        """Whether a text column's first rows are dates and clock times (``2024-03-05
+        14:00:00.000``, ``14:00:00.000``): read as seconds from the first sample, as a
+        spreadsheet's or Parquet's are (a CSV's was "not a number", even with the sample rate
+        given: found by fuzzing)."""
+        import pandas as pd
+
+        sample = []
+        for _, fields in self._data_rows():
+            if key < len(fields) and fields[key]:
+                sample.append(fields[key])
+            if len(sample) >= 20:
+                break
+        clock = [f for f in sample if re.search(r"\d:\d\d", f)]  # (most: a garbled row is named later)
+        if not sample or len(clock) < 0.8 * len(sample):
+            return False
+        try:
+            parsed = pd.to_datetime(pd.Series(clock), format="mixed")
+        except (ValueError, TypeError, OverflowError):
+            return False
+        return bool(parsed.notna().all())
+
+    def _seconds(self, key: int, col: Any) -> np.ndarray:
+        import pandas as pd
+
+        when = pd.to_datetime(col, format="mixed", errors="coerce")
+        if when.isna().any():
+            i = int(np.argmax(when.isna().to_numpy()))
+            raise DataError(f"{self.where}: at {self.locate(key, i)}, {str(col.iloc[i])[:40]!r} in {self.label(key)!r} "
+                            f"is not a clock time as the rows before are")
+        self.meta.setdefault("clock_times", []).append(self.label(key))
+        return np.asarray((when - when.iloc[0]).dt.total_seconds().to_numpy(dtype=np.float64), dtype=np.float64)
 
     def read_all(self, limit: int) -> np.ndarray:
         """Every offered column as a rows x columns float64 array (NaN allowed)."""
         cols = self.read(self.lay.offered, limit)
         return np.column_stack(cols) if cols else np.empty((0, 0))
 
-    def _parse(self, keys: list[int]) -> Any:
+    def _parse(self, keys: list[int], text: Sequence[int] = ()) -> Any:
         import pandas as pd
 
         lay = self.lay
+        dtype: Any = np.float64 if not text else {f"c{i}": (str if i in text else np.float64)
+                                                   for i in range(lay.nfields)}
         kwargs: dict[str, Any] = {
             "sep": lay.delimiter if lay.delimiter is not None else r"\s+", "decimal": lay.decimal,
             "skiprows": lay.skip, "header": None, "names": [f"c{i}" for i in range(lay.nfields)],
-            "index_col": False, "dtype": np.float64, "engine": "c", "skip_blank_lines": True,
+            "index_col": False, "dtype": dtype, "engine": "c", "skip_blank_lines": True,
         }
         if len(keys) < lay.nfields:
             if _parallel_read_beats_usecols(pd, self.size, len(keys), lay.nfields):
