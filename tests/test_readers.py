@@ -877,3 +877,13 @@ def test_clock_times_in_a_text_file_are_seconds_from_the_first_sample(tmp_path, 
     p.write_text("\n".join(lines) + "\n")
     with pytest.raises(DataError, match=r"line 6, 'garbled' in 'Timestamp' is not a clock time"):
         ph.load_dataset(p)
+
+
+def test_a_units_row_in_brackets_under_the_header(tmp_path, ref):
+    """'[s],[V],[mm]' under the header was taken for the header (found by fuzzing)."""
+    p = tmp_path / "bracketed.csv"
+    p.write_text("Time,Voltage,Displacement\n[s],[V],[mm]\n"
+                 + "".join(f"{a:.17g},{b:.17g},{c:.17g}\n" for a, b, c in zip(T, U, Y / 1000.0)))
+    ds = ph.load_dataset(p, u_col="Voltage")
+    assert ds.meta["columns"] == {"t": "Time", "u": "Voltage", "y": "Displacement"}
+    np.testing.assert_allclose(ds.y, Y, rtol=1e-12)

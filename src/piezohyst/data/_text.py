@@ -311,9 +311,10 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     if before:
         cand = without_extra_field(fields_of(before[-1]))
         if fits(cand):
-            if len(before) >= 2 and all(is_unit(f) for f in cand) and fits(fields_of(before[-2])) and \
-                    not all(is_unit(f) for f in fields_of(before[-2])):
-                units, names, header_line = cand, fields_of(before[-2]), before[-2] + 1
+            bare = [_unbracketed(f) for f in cand]  # "[s]", "(V)" as units rows write them too
+            if len(before) >= 2 and all(is_unit(f) for f in bare) and fits(fields_of(before[-2])) and \
+                    not all(is_unit(_unbracketed(f)) for f in fields_of(before[-2])):
+                units, names, header_line = bare, fields_of(before[-2]), before[-2] + 1
                 units_line = True
             else:
                 names, header_line = cand, before[-1] + 1
@@ -347,6 +348,15 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
                   text_columns=tuple(j for j, c in enumerate(cols) if c == "x"), preamble=preamble,
                   index_dropped=index_dropped, bytes_per_row=max(2.0, float(row_bytes)),
                   data_offset=offset, trailing=trailing, saved_meta=saved_meta, header_mismatch=mismatch)
+
+
+def _unbracketed(field_text: str) -> str:
+    """A units row's field without its brackets: ``[mm]`` -> ``mm`` (a row of them was taken for
+    the header, and the names above it lost: found by fuzzing)."""
+    f = field_text.strip()
+    if len(f) >= 2 and (f[0], f[-1]) in (("[", "]"), ("(", ")"), ("{", "}")):
+        return f[1:-1].strip()
+    return f
 
 
 def _labview_units(names: list[str], header_lines: list[list[str]]) -> list[str] | None:
