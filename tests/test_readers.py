@@ -913,3 +913,12 @@ def test_a_single_precision_time_column(tmp_path):
         assert ds.meta["time_single_precision"]["dt"] == pytest.approx(step, rel=1e-5)
     with pytest.raises(DataError, match="not uniformly sampled"):  # a dropped sample still shows
         ph.load_dataset(write(10.0, 1e-3, drop=n // 2))
+
+
+def test_a_compressed_file_is_named_as_such(tmp_path):
+    import gzip
+
+    p = tmp_path / "run.csv.gz"
+    p.write_bytes(gzip.compress(b"t,u,y\n0,1,2\n0.1,2,3\n"))
+    with pytest.raises(DataError, match=r"run\.csv\.gz: a compressed file .* decompress it first"):
+        ph.load_dataset(p)  # it was "not a text file (it contains NUL bytes)"

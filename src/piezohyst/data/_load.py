@@ -90,6 +90,8 @@ def detect_format(p: Path, head: bytes) -> str:
         return "parquet"
     if head.startswith(b"TDSm"):
         return "tdms"
+    if head.startswith((b"\x1f\x8b", b"BZh", b"\xfd7zXZ\x00", b"\x28\xb5\x2f\xfd")):
+        return "compressed"  # gzip, bzip2, xz, zstd ("not a text file (it contains NUL bytes)" before)
     if head.startswith(_OLE2):
         return "xls"
     suffix = p.suffix.lower()
@@ -258,7 +260,8 @@ def _load(p: Path, head: bytes, size: int, fmt: str, opts: dict[str, Any],
     what = {"tdms": "a LabVIEW TDMS file (export it as text or read it with npTDMS and use "
                     "Dataset.from_dataframe)",
             "zip": "a zip archive that is neither .npz nor a spreadsheet",
-            "zip?": "a damaged zip archive"}.get(fmt, fmt)
+            "zip?": "a damaged zip archive",
+            "compressed": "a compressed file (gzip, bzip2, xz or zstd); decompress it first (e.g. gunzip)"}.get(fmt, fmt)
     raise DataError(f"{where}: {what}; {supported()}")
 
 
