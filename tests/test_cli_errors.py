@@ -87,6 +87,8 @@ def make_inputs(root: Path) -> dict[str, str]:
     text("const.csv", "t,u,y\n" + "\n".join(f"{a:.6g},5,1" for a in t[:50]) + "\n")
     text("yconst.csv", "t,u,y\n" + "\n".join(f"{a:.6g},{b:.6g},1" for a, b in zip(t, u)) + "\n")
     text("tiny.csv", "t,u,y\n" + "\n".join(f"{0.01 * i:g},{i % 3},{0.1 * (i % 3) + 0.01 * i:g}" for i in range(6)) + "\n")
+    text("latecomma.csv", "voltage;y\n" + "0;0\n" * 250 + "".join(
+        f"{0.5 + i / 100:.3f};{1 + i / 50:.3f}\n".replace(".", ",") for i in range(300)))
     # a displacement sensor logged in volts, its unit after an underscore (read as um before)
     text("sensorv.csv", "t_s,u_V,y_V\n" + "\n".join(f"{a:.6g},{b:.9g},{c:.9g}" for a, b, c in zip(t, u, y)) + "\n")
     np.savez(root / "data.npz", t=t, u=u, y=y)
@@ -414,6 +416,10 @@ CASES: list[Case] = [
     C("identify --units twice, differently", "identify {data} --model pi --units y=nm --units y=um", "--units"),
     C("fleet a sensor logged in volts", "fleet identify {sensorv} --model pi --out {root}/fl4 --units y=furlong",
       "furlong"),
+    C("identify --delimiter of two characters", "identify {data} --model pi --delimiter ab", "--delimiter"),
+    C("identify --decimal semicolon", "identify {data} --model pi --decimal ;", "--decimal"),
+    C("identify --encoding unknown", "identify {data} --model pi --encoding klingon", "klingon"),
+    C("identify a late decimal comma", "identify {latecomma} --model pi --fs 1000", "--decimal ,"),
 ]
 
 #: Python keyword spelling that must not reach a command-line user

@@ -922,3 +922,16 @@ def test_a_compressed_file_is_named_as_such(tmp_path):
     p.write_bytes(gzip.compress(b"t,u,y\n0,1,2\n0.1,2,3\n"))
     with pytest.raises(DataError, match=r"run\.csv\.gz: a compressed file .* decompress it first"):
         ph.load_dataset(p)  # it was "not a text file (it contains NUL bytes)"
+
+
+def test_a_decimal_comma_that_shows_only_after_the_first_rows(tmp_path):
+    """250 rows of whole numbers, then '0,512': 'not a number' with no word of the decimal mark,
+    and decimal=',' given alone then found no table at all (found by fuzzing)."""
+    rows = ["voltage;y"] + ["0;0"] * 250 + [f"{0.5 + i / 100:.3f};{1 + i / 50:.3f}".replace(".", ",") for i in range(300)]
+    p = tmp_path / "late.csv"
+    p.write_text("\n".join(rows) + "\n")
+    with pytest.raises(DataError, match=r"line 252, column 'voltage': '0,500' is not a number; the file writes a "
+                                        r"decimal comma"):
+        ph.load_dataset(p, fs=1000.0)
+    ds = ph.load_dataset(p, decimal=",", fs=1000.0)
+    assert ds.u[-1] == pytest.approx(0.5 + 299 / 100) and len(ds) == 550

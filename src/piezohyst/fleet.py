@@ -185,7 +185,7 @@ class FitOptions:
     delay : int or "auto", optional
         Samples by which the output lags the input (default ``"auto"`` with ``select``, 0
         otherwise).
-    u_col, y_col, t_col, fs, resample, units
+    u_col, y_col, t_col, fs, resample, units, delimiter, decimal, encoding
         How to read each file (:func:`~piezohyst.load_dataset`; ``resample``: a time column that
         is not uniformly sampled is interpolated onto a uniform grid; ``units``: a unit or factor
         per column role, over what the names say, e.g. ``{"y": 10.0}`` for a sensor of 10 um/V).
@@ -208,11 +208,21 @@ class FitOptions:
     history: str | None = None
     resample: bool = False
     units: dict[str, Any] | None = None
+    delimiter: str | None = None
+    decimal: str | None = None
+    encoding: str | None = None
 
     def __post_init__(self) -> None:
         from .models.base import kind_class
 
         as_flag("resample", self.resample)  # ("no" was taken as true: found by fuzzing)
+        if self.decimal not in (None, ".", ","):
+            raise ValueError(f"decimal must be '.' or ',', got {self.decimal!r}")
+        for name in ("delimiter", "encoding"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, str) and v and (name == "encoding" or len(v) == 1)):
+                raise ValueError(f"{name} must be {'one character' if name == 'delimiter' else 'an encoding name'}, "
+                                 f"got {v!r}")
         if self.units is not None:
             from .data._columns import check_units_arg
 
@@ -265,7 +275,8 @@ class FitOptions:
     def data_options(self) -> dict[str, Any]:
         """The keyword arguments of :func:`~piezohyst.load_dataset`."""
         return {"u_col": self.u_col, "y_col": self.y_col, "t_col": self.t_col, "fs": self.fs,
-                "resample": bool(self.resample), "units": self.units}
+                "resample": bool(self.resample), "units": self.units, "delimiter": self.delimiter,
+                "decimal": self.decimal, "encoding": self.encoding}
 
     def to_dict(self) -> dict[str, Any]:
         """The options as plain data (the fleet's result records them)."""

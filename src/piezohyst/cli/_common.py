@@ -291,6 +291,19 @@ def unit_setting(text: str) -> tuple[str, Any]:
         return role, value
 
 
+#: delimiter names a shell makes easier to type than the characters
+DELIMITER_NAMES = {"tab": "\t", "comma": ",", "semicolon": ";", "bar": "|", "\\t": "\t"}
+
+
+def delimiter_setting(text: str) -> str:
+    """``--delimiter``: one character, or tab, comma, semicolon, bar."""
+    d = DELIMITER_NAMES.get(text.strip().lower(), text)
+    if len(d) != 1 or d.isalnum() or d in ".\"'":
+        raise argparse.ArgumentTypeError(f"{text!r} is not a delimiter: give one character or tab, comma, "
+                                         "semicolon, bar")
+    return d
+
+
 def check_sinusoids(fs_list: list[float], cycles: float, dt: float, *, freq_flag: str = "--freq",
                     cycles_flag: str = "--cycles", rate_from: str = "") -> None:
     """Refuse, before allocating, sinusoids that the sample period cannot carry or memory cannot hold."""
@@ -319,6 +332,12 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--units", type=unit_setting, action="append", default=None, metavar="ROLE=UNIT",
                    help="the unit of a column, over what its name says (repeatable): t=ms, u=mV, y=nm; or a "
                         "factor to s, V or um: y=10 for a displacement sensor's volts at 10 um/V")
+    p.add_argument("--delimiter", type=delimiter_setting, default=None,
+                   help="a text file's delimiter, over what is sniffed: one character, or tab, comma, semicolon, bar")
+    p.add_argument("--decimal", choices=(".", ","), default=None,
+                   help="a text file's decimal mark, over what is sniffed")
+    p.add_argument("--encoding", default=None,
+                   help="a text file's encoding, over what is sniffed (e.g. utf-8, cp1252, utf-16)")
     p.add_argument("--resample", action="store_true",
                    help="a time column that is not uniformly sampled (dropped or jittered samples) is interpolated "
                         "onto a uniform grid (at --fs, else the median step) instead of refused")
@@ -336,7 +355,9 @@ def data_options(args: argparse.Namespace) -> dict[str, Any]:
             raise UsageError(f"--units gives {role} twice ({units[role]!r} and {value!r})")
         units = {**(units or {}), role: value}
     return {"u_col": args.u_col, "y_col": args.y_col, "t_col": args.t_col, "fs": args.fs,
-            "resample": bool(getattr(args, "resample", False)), "units": units}
+            "resample": bool(getattr(args, "resample", False)), "units": units,
+            "delimiter": getattr(args, "delimiter", None), "decimal": getattr(args, "decimal", None),
+            "encoding": getattr(args, "encoding", None)}
 
 
 def load_cli_dataset(path: str, args: argparse.Namespace) -> Any:

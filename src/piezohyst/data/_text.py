@@ -214,7 +214,7 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     present = "".join(lines[li] for li in content[:_SAMPLE])
     candidates = [(delimiter, decimal or ".")] if delimiter is not None else \
         [c for c in CANDIDATES if (decimal is None or c[1] == decimal)
-         and (c[0] is None or c[0] in present) and (c[1] == "." or "," in present)]
+         and (c[0] is None or c[0] in present) and (c[1] == "." or decimal is not None or "," in present)]
     if delimiter is not None and decimal is None and delimiter != ",":
         candidates.append((delimiter, ","))
     cache: dict[tuple[int, str | None, str], tuple[str, ...]] = {}
@@ -638,7 +638,13 @@ class TextSource:
                 return f"line {lineno} {bad}"
             for k in keys:
                 if k < len(fields) and _cls(fields[k], self.lay.decimal) == "x":
-                    return f"line {lineno}, column {self.label(k)!r}: {fields[k][:40]!r} is not a number"
+                    hint = ""
+                    if self.lay.decimal == "." and self.lay.delimiter != "," and \
+                            re.fullmatch(r"[-+]?\d*,\d+(?:[eE][-+]?\d+)?", fields[k]):
+                        # (the first rows were whole numbers: the decimal comma showed only later)
+                        hint = ("; the file writes a decimal comma where its first rows did not show one: give "
+                                "the decimal mark (decimal=',' in Python, --decimal , at the command line)")
+                    return f"line {lineno}, column {self.label(k)!r}: {fields[k][:40]!r} is not a number{hint}"
         return None
 
     def _row(self, row: int) -> tuple[int, list[str]] | None:
