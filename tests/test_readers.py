@@ -200,7 +200,7 @@ def test_preamble_before_the_table_and_a_trailing_delimiter(tmp_path, ref):
                  "X_Value\tVoltage\tDisplacement\tComment\n" + "\n".join(body) + "\n")
     ds = ph.load_dataset(p)
     same(ds, ref)
-    assert ds.meta["skipped_lines"] == 4 and ds.meta["columns"]["t"] == "X_Value"
+    assert ds.meta["format"] == "lvm" and ds.meta["columns"]["t"] == "X_Value"
 
 
 def test_columns_by_name_or_index_among_extra_columns(tmp_path, ref):
@@ -821,6 +821,17 @@ X_Value\tVoltage\tDisplacement\tComment
 """
 
 
+def _lvm_rows(t, u, y_mm, row_end="", x=True):
+    return "".join(f"{a:.9e}\t{b:.12e}\t{c:.12e}{row_end}\n".replace(".", ",") if x else
+                   f"\t{b:.12e}\t{c:.12e}{row_end}\n".replace(".", ",") for a, b, c in zip(t, u, y_mm))
+
+
+def _lvm(n, dt, x_columns="One", x0=0.0):
+    return (_LVM_HEAD.replace("X_Columns\tOne", f"X_Columns\t{x_columns}")
+            .replace("X0\t0,0000000000000000E+0\t0,0000000000000000E+0", f"X0\t{x0:.6e}\t{x0:.6e}".replace(".", ","))
+            .format(n=n, dt=f"{dt:.6f}".replace(".", ",")))
+
+
 @pytest.mark.parametrize("row_end", ["", "\t"])
 def test_labview_lvm_units_and_comment_column(tmp_path, ref, row_end):
     """LabVIEW states the units in its segment header (Y_Unit_Label) and names a Comment column
@@ -828,13 +839,39 @@ def test_labview_lvm_units_and_comment_column(tmp_path, ref, row_end):
     without the tab the columns could not be named (found by fuzzing)."""
     p = tmp_path / "run.lvm"
     dt = float(T[1] - T[0])
-    rows = "".join(f"{a:.9e}\t{b:.12e}\t{c:.12e}{row_end}\n".replace(".", ",") for a, b, c in zip(T, U, Y / 1000.0))
-    p.write_text(_LVM_HEAD.format(n=T.size, dt=f"{dt:.6f}".replace(".", ",")) + rows)
+    p.write_text(_lvm(T.size, dt) + _lvm_rows(T, U, Y / 1000.0, row_end))
     ds = ph.load_dataset(p)
     assert ds.meta["columns"] == {"t": "X_Value", "u": "Voltage", "y": "Displacement"}
-    assert ds.meta["units"]["y"]["unit"] == "mm"
+    assert ds.meta["units"]["y"]["unit"] == "mm" and ds.meta["format"] == "lvm"
     np.testing.assert_allclose(ds.y, Y, rtol=1e-9, atol=1e-9)
     same(ph.load_dataset(p, u_col="Voltage", y_col="Displacement"), ref)
+
+
+def test_labview_lvm_without_x_values_and_with_segments(tmp_path, ref):
+    """X_Columns No (no x values: the time is X0 + k Delta_X) found no table; a second segment
+    was 'not a number' (found by fuzzing). Segments that continue in time are one record; one
+    whose time restarts is refused with its line."""
+    dt = float(T[1] - T[0])
+    half = T.size // 2
+    p = tmp_path / "nox.lvm"
+    p.write_text(_lvm(T.size, dt, "No") + _lvm_rows(T, U, Y / 1000.0, x=False))
+    ds = ph.load_dataset(p)
+    np.testing.assert_allclose(ds.t, T - T[0], atol=1e-9)
+    np.testing.assert_allclose(ds.y, Y, rtol=1e-9, atol=1e-9)
+    body = _LVM_HEAD.split("***End_of_Header***\t\n\t\n", 1)[1]  # a segment header, as LabVIEW repeats it
+    two = tmp_path / "two.lvm"
+    two.write_text(_lvm(half, dt) + _lvm_rows(T[:half], U[:half], Y[:half] / 1000.0) + "\n"
+                   + body.format(n=T.size - half, dt=f"{dt:.6f}".replace(".", ","))
+                   + _lvm_rows(T[half:], U[half:], Y[half:] / 1000.0))
+    ds = ph.load_dataset(two)
+    assert ds.meta["lvm"]["segments"] == 2 and len(ds) == T.size
+    np.testing.assert_allclose(ds.y, Y, rtol=1e-9, atol=1e-9)
+    again = tmp_path / "restart.lvm"
+    again.write_text(_lvm(half, dt) + _lvm_rows(T[:half], U[:half], Y[:half] / 1000.0) + "\n"
+                     + body.format(n=half, dt=f"{dt:.6f}".replace(".", ","))
+                     + _lvm_rows(T[:half], U[:half], Y[:half] / 1000.0))
+    with pytest.raises(DataError, match=r"segment 2 \(rows from line \d+\) starts at t = 0 s.*separate records"):
+        ph.load_dataset(again)
 
 
 def test_a_header_written_as_a_comment_by_numpy_savetxt_and_one_with_a_trailing_delimiter(tmp_path, ref):

@@ -98,7 +98,9 @@ OPTIONS = st.one_of(
 @fuzz(100)
 @given(data=st.binary(max_size=2048), suffix=st.sampled_from(SUFFIXES), prefix=st.sampled_from(
     [b"", b"MATLAB 5.0 MAT-file", b"MATLAB 7.3 MAT-file", b"\x93NUMPY", b"PK\x03\x04", b"PAR1",
-     b"\x89HDF\r\n\x1a\n", codecs.BOM_UTF8, codecs.BOM_UTF16_LE, b"TDSm"]), opts=OPTIONS)
+     b"\x89HDF\r\n\x1a\n", codecs.BOM_UTF8, codecs.BOM_UTF16_LE, b"TDSm",
+     b"LabVIEW Measurement\t\nX_Columns\tNo\n***End_of_Header***\n\nChannels\t2\nDelta_X\t0.001\t0.001\n"
+     b"***End_of_Header***\nX_Value\tU\tY\tComment\n"]), opts=OPTIONS)
 def test_random_bytes(workdir, data, suffix, prefix, opts):
     p = fresh(workdir, suffix)
     p.write_bytes(prefix + data)

@@ -13,7 +13,13 @@ Formats (found from the file's first bytes, then its name)
   latin-1; ``#`` comments; lines of preamble before the table (skipped, counted in
   ``meta["skipped_lines"]``); an optional header and an optional line of units under it; an
   unnamed first column as pandas writes its index (dropped; column numbers count the columns
-  after it). Parsed by pandas, only the columns needed.
+  after it); a header written as a ``#`` comment (``numpy.savetxt``); clock times
+  (``2024-03-05 14:00:00.000``) as seconds from the first sample. Parsed by pandas, only the
+  columns needed.
+* LabVIEW measurement files (``LabVIEW Measurement`` on the first line, usually ``.lvm``): the
+  delimiter and decimal mark its header states, the units of ``Y_Unit_Label``, the time from
+  ``X_Value`` or ``X0 + k Delta_X`` (``X_Columns No``), segments that continue in time joined
+  (a segment whose time restarts is refused: split the file).
 * MATLAB ``.mat`` v4, v5 and v7 (scipy) and v7.3 (HDF5, h5py): variables, or paths into
   structs: ``x.signals.values``, ``logsout.signals[0].values`` (``[i]`` from 0; MATLAB's
   ``(i)``/``{i}`` from 1), ``data[:, 2]`` for one column. A Simulink "structure with time"

@@ -45,7 +45,8 @@ def supported() -> str:
         return text if _has(mod) else f"{text} (needs {pkg}: pip install {pkg})"
 
     return ("supported formats: text tables (" + _TEXT_SUFFIXES + " or any name; comma, semicolon, tab or "
-            "whitespace separated, decimal point or comma, UTF-8/UTF-16/cp1252), MATLAB .mat (v4, v5, v7 "
+            "whitespace separated, decimal point or comma, UTF-8/UTF-16/cp1252), LabVIEW measurement files "
+            ".lvm (units and segments from their headers), MATLAB .mat (v4, v5, v7 "
             "and v7.3), NumPy .npz and .npy, HDF5 .h5/.hdf5, " + opt("parquet", "Parquet .parquet") + ", "
             + opt("xlsx", "Excel .xlsx") + ", " + opt("xls", "Excel 97 .xls") + ", "
             + opt("ods", "OpenDocument .ods"))
@@ -90,6 +91,10 @@ def detect_format(p: Path, head: bytes) -> str:
         return "parquet"
     if head.startswith(b"TDSm"):
         return "tdms"
+    from ._lvm import is_lvm
+
+    if is_lvm(head):
+        return "lvm"
     if head.startswith((b"\x1f\x8b", b"BZh", b"\xfd7zXZ\x00", b"\x28\xb5\x2f\xfd")):
         return "compressed"  # gzip, bzip2, xz, zstd ("not a text file (it contains NUL bytes)" before)
     if head.startswith(_OLE2):
@@ -141,7 +146,8 @@ def load_dataset(
     """Load a record (time, input voltage, output displacement) from a lab file.
 
     The format is found from the file's first bytes (then its name): text tables (any common
-    delimiter, decimal comma, UTF-8/UTF-16/cp1252/latin-1), MATLAB ``.mat`` v4 to v7.3, NumPy
+    delimiter, decimal comma, UTF-8/UTF-16/cp1252/latin-1), LabVIEW measurement files (``.lvm``:
+    units, time and segments from their headers), MATLAB ``.mat`` v4 to v7.3, NumPy
     ``.npz``/``.npy``, HDF5, Parquet and Excel/OpenDocument (when pandas' engine for them is
     installed). Values are converted to seconds, volts and micrometres from the units in the
     names (``Displacement [nm]``, ``Time (ms)``, ``u_mV``, ``time.s``) or stated by the file (a line of units
@@ -240,6 +246,16 @@ def _load(p: Path, head: bytes, size: int, fmt: str, opts: dict[str, Any],
             raise DataError(f"{where}: not a text file ({exc}) nor another format piezohyst reads; "
                             f"{supported()}") from None
         return assemble(src, extra_meta=src.lay.saved_meta, **opts)
+    if fmt == "lvm":
+        from ._frame import FrameSource
+        from ._lvm import read_lvm
+
+        from ._columns import check_size
+
+        # the rows are split into Python strings first: about 10 times the file's size
+        check_size(where, 10.0 * size, opts["max_memory"], "reading this LabVIEW file")
+        df = read_lvm(p)
+        return assemble(FrameSource(df, where=where, fmt="lvm"), extra_meta={"lvm": df.attrs["lvm"]}, **opts)
     if fmt == "npz":
         with c.npz(p) as (root, saved):
             return assemble(TreeSource(root, where=where, fmt="npz", kind="array"), extra_meta=saved, **opts)

@@ -114,7 +114,7 @@ class Layout:
     trailing: bool  # every row ends with a delimiter (an empty last field, not offered)
     saved_meta: dict[str, Any] = field(default_factory=dict)
     header_mismatch: str | None = None
-    units_line: bool = False  # ``units`` came from the line under the header (else a LabVIEW label)
+    units_line: bool = False  # ``units`` came from the line under the header
     text_columns: tuple[int, ...] = ()  # columns whose rows hold text, not numbers (clock times?)
 
 
@@ -325,8 +325,6 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
         names = comment_header()
         if names is not None:
             header_line = None  # a comment: the data start right after it
-    if names is not None and units is None:
-        units = _labview_units(names, [fields_of(li) for li in before])
     if names is not None:
         names = names + [""] * (n - len(names))
         if units is not None:
@@ -337,7 +335,7 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
         offered = offered[1:]
         index_dropped = True
     # the lines before the data that are neither header nor units line (a header in a comment is
-    # not among them; LabVIEW's units stand in its segment header, itself preamble)
+    # not among them)
     preamble = len(before) - (0 if names is None or header_line is None else 2 if units_line else 1)
 
     rows_text = "\n".join(lines[li] for li in content[start:])
@@ -357,21 +355,6 @@ def _unbracketed(field_text: str) -> str:
     if len(f) >= 2 and (f[0], f[-1]) in (("[", "]"), ("(", ")"), ("{", "}")):
         return f[1:-1].strip()
     return f
-
-
-def _labview_units(names: list[str], header_lines: list[list[str]]) -> list[str] | None:
-    """The units a LabVIEW measurement file (``.lvm``) states in its segment header
-    (``Y_Unit_Label  Volts  mm``, one per channel; ``X_Dimension  Time`` for the ``X_Value``
-    column): they were ignored, and a displacement in mm was read as um (found by fuzzing)."""
-    labels = [f for f in header_lines if f[:1] == ["Y_Unit_Label"]]
-    if not labels:
-        return None
-    y_units = labels[-1][1:]
-    if names and names[0].strip().lower() == "x_value":
-        dims = [f for f in header_lines if f[:1] == ["X_Dimension"]]
-        x_unit = "s" if dims and dims[-1][1:2] and dims[-1][1].strip().lower() == "time" else ""
-        return [x_unit, *y_units]
-    return list(y_units)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -417,10 +400,8 @@ class TextSource:
         }
         if lay.header_line is not None:
             self.meta["header_line"] = lay.header_line
-        if lay.units is not None and lay.units_line:
+        if lay.units is not None:
             self.meta["units_line"] = lay.header_line + 1 if lay.header_line else None
-        elif lay.units is not None:
-            self.meta["units_from"] = "the LabVIEW segment header (Y_Unit_Label)"
         if lay.preamble:
             self.meta["skipped_lines"] = lay.preamble
         if lay.index_dropped:
