@@ -247,6 +247,14 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("PID dt set negative after construction", lambda: setattr(ph.PID(1.0, 0.0, 0.0, 1e-3), "dt", -1.0), ("dt",)),
         ("save_dataset to a .mat name", lambda: ph.save_dataset(tmp / "s.mat", ph.Dataset(u_t, u, y)), ("s.mat",)),
         ("FitOptions resample 'no'", lambda: ph.fleet.FitOptions(resample="no"), ("resample",)),
+        # a fourth round (this stop): options new to FitOptions, checked up front
+        ("FitOptions decimal ';'", lambda: ph.fleet.FitOptions(decimal=";"), ("decimal",)),
+        ("FitOptions delimiter of two characters", lambda: ph.fleet.FitOptions(delimiter="ab"), ("delimiter",)),
+        ("FitOptions units of an unknown role", lambda: ph.fleet.FitOptions(units={"q": "nm"}), ("units", "'q'")),
+        ("load_dataset units of the wrong kind", lambda: ph.load_dataset(tmp / "enc.csv", units={"y": "V"}),
+         ("voltage",)),
+        ("BoucWen compensator of a loop that falls", lambda: ph.BoucWen(
+            **{**pv.BOUC_WEN, "gamma": -0.05}).compensator(), ("not monotone",)),
         ("write_table lengths differ", lambda: write_table(tmp / "wt1.mat", u_t, u, u[:5], dt=1e-3, comments=[]),
          ("same length",)),
         ("write_table NaN command", lambda: write_table(tmp / "wt2.csv", u_t, u, np.r_[u[:-1], nan], dt=1e-3,
