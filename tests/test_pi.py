@@ -125,6 +125,17 @@ def test_non_invertible_names_the_failing_partial_sum():
         model.inverse()
 
 
+def test_weights_whose_inverse_overflows_are_not_invertible():
+    """Weights of 1e-300 have positive partial sums, but eq. (15)'s inverse weights overflow: the
+    model said "invertible" and its compensator failed on "non-finite weights" of the inverse,
+    named as if they were the model's (found by fuzzing)."""
+    model = ph.PrandtlIshlinskii(ph.equal_thresholds(4, 4.0), [1e-300] * 4)
+    assert not model.is_invertible
+    with pytest.raises(ValueError, match=r"not invertible in floating point: the inverse's weight w'_2"):
+        model.compensator()
+    assert ph.PrandtlIshlinskii(ph.equal_thresholds(4, 4.0), [1e-3] * 4).is_invertible
+
+
 def test_offsets_round_trip(rng):
     model = ph.PrandtlIshlinskii(ph.equal_thresholds(5, 10.0), [0.8, 0.2, 0.1, -0.1, 0.05], offset=-120.0)
     u = rng.uniform(0, 10, 300)

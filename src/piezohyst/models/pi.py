@@ -228,8 +228,11 @@ class PrandtlIshlinskii:
 
     @property
     def is_invertible(self) -> bool:
-        """True when every partial sum of the weights is > 0 (the condition of eqs. 13-15)."""
-        return bool(np.all(self.partial_sums > 0))
+        """True when every partial sum of the weights is > 0 (the condition of eqs. 13-15) and the
+        inverse's weights, eq. (15), are finite numbers (weights of 1e-300 passed the first and
+        their inverse overflowed: found by fuzzing)."""
+        s = self.partial_sums
+        return bool(np.all(s > 0)) and bool(np.all(np.isfinite(_inverse_weights(self.weights, s))))
 
     def inverse(self) -> "PrandtlIshlinskii":
         """The analytic inverse model, eqs. (12)-(15), itself a :class:`PrandtlIshlinskii`.
@@ -255,13 +258,17 @@ class PrandtlIshlinskii:
                 f"sum > 0)"
             )
         n = self.n
+        w_inv = _inverse_weights(w, s)
+        if not np.all(np.isfinite(w_inv)):
+            i = int(np.flatnonzero(~np.isfinite(w_inv))[0])
+            raise ValueError(
+                f"model is not invertible in floating point: the inverse's weight w'_{i + 1} of eq. (15) "
+                f"overflows (the partial sums of the weights reach down to {float(np.min(s)):.3g}, whose "
+                f"inverse slope is beyond the range of a float)")
         r_inv = np.array([np.dot(w[: i + 1], r[i] - r[: i + 1]) for i in range(n)])
         # the tail sums sum_{j>i} w_j y0_j, computed once
         tail = np.concatenate([np.cumsum((w * y0)[::-1])[::-1][1:], [0.0]])
         y0_inv = s * y0 + tail
-        w_inv = np.empty(n)
-        w_inv[0] = 1.0 / w[0]
-        w_inv[1:] = -w[1:] / (s[1:] * s[:-1])
         return PrandtlIshlinskii(
             thresholds=r_inv,
             weights=w_inv,
@@ -281,6 +288,15 @@ class PrandtlIshlinskii:
         from .._html import model_html
 
         return model_html(self)
+
+
+def _inverse_weights(w: FloatArray, s: FloatArray) -> FloatArray:
+    """Eq. (15): ``w'_1 = 1/w_1``, ``w'_i = -w_i / (S_i S_{i-1})`` (inf where it overflows)."""
+    out = np.empty(w.size)
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        out[0] = 1.0 / w[0]
+        out[1:] = -w[1:] / (s[1:] * s[:-1])
+    return out
 
 
 class PIStepper:
