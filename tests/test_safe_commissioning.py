@@ -448,3 +448,67 @@ def test_fit_model_names_a_butterfly_loop_but_not_a_dead_band():
     with pytest.raises(ValueError, match="hardly follows") as err:
         ph.fit_model(u, 1e-3 * rng.standard_normal(u.size) - 1e-6 * u, 1e-4)
     assert "butterfly" not in str(err.value)
+
+
+class _FailsFrom(Recorder):
+    """A stage whose ``step`` raises at its ``at``-th call (or, ``persistent``, at every call from it on)."""
+
+    def __init__(self, plant, at, exc, persistent=False):
+        super().__init__(plant)
+        self.at, self.exc, self.persistent, self.calls = at, exc, persistent, 0
+
+    def _step(self, u):
+        self.calls += 1
+        if self.calls == self.at or (self.persistent and self.calls > self.at):
+            self.commands.append(float(u))
+            raise type(self.exc)(f"{self.exc} at call {self.calls}")
+        return super()._step(u)
+
+
+def _commands_of_identification(plant):
+    """How many commands ``commission(tune=False)`` sends: the tuning session starts after them."""
+    counter = Recorder(plant)
+    ph.commission(counter, tune=False)
+    return len(counter.commands) - 1  # (commands[0] is the rest the stage starts at)
+
+
+@pytest.mark.parametrize("where", ["tracking lead-in", "tuning lead-in"])
+def test_a_fault_during_a_lead_in_ramps_back_to_rest(where):
+    """The lead-in from rest to a run's first target (a tracking run's, the tuning session's) ran
+    before the guard that ramps back to rest: stopped there, the stage was left at up to 83 V
+    (found by fuzzing)."""
+    base = ResonantStage(seed=0, dt=2e-4)
+    lo, hi = base.u_range
+    if where == "tracking lead-in":
+        stage = _FailsFrom(base, 10**9, RuntimeError("sensor timeout"))
+        ctl = ph.commission(stage, tune=False)
+        y = np.asarray(ctl.identification.y)
+        ref = ph.sinusoid(2.0, 2, *np.percentile(y, [60, 90]), base.dt)[int(0.125 / base.dt):]  # starts high
+        lead_in = ctl.track(ref, feedback=False, learning=False).info["lead_in_samples"]
+        assert lead_in > 100, lead_in
+        stage.calls, stage.at = 0, 3 * lead_in // 4  # three quarters of the way up
+        stage.commands = [stage.commands[-1]]
+        with pytest.raises(RuntimeError, match=f"at call {stage.at}$"):
+            ctl.track(ref, feedback=False, learning=False)
+    else:
+        at = _commands_of_identification(ResonantStage(seed=0, dt=2e-4)) + 200
+        stage = _FailsFrom(ResonantStage(seed=0, dt=2e-4), at, RuntimeError("sensor timeout"))
+        with pytest.raises(RuntimeError, match=f"at call {at}$"):
+            ph.commission(stage)
+    cmds = np.asarray(stage.commands)
+    k = len(cmds) - 1 - (stage.calls - stage.at)  # the command the fault came with
+    assert cmds[k] > lo + 0.05 * (hi - lo), cmds[k]                # stopped away from rest ...
+    assert stage.calls > stage.at and abs(cmds[-1]) < 1e-12         # ... and ramped back to it after the fault
+    assert np.max(np.abs(np.diff(cmds[k:]))) <= 0.02 * (hi - lo) + 1e-9  # smoothly, from where it was
+
+
+def test_a_persistent_fault_raises_the_error_that_stopped_the_run():
+    """A plant failing at every call from the N-th on: the ramp back to rest failed too, and its
+    error replaced the first (found by fuzzing); the first is raised now."""
+    stage = _FailsFrom(ResonantStage(seed=0, dt=2e-4), 10**9, OSError("link down"))
+    ctl = ph.commission(stage, tune=False)
+    y = np.asarray(ctl.identification.y)
+    ref = ph.sinusoid(2.0, 2, *np.percentile(y, [30, 70]), stage.dt)
+    stage.calls, stage.at, stage.persistent = 0, 3000, True
+    with pytest.raises(OSError, match="link down at call 3000$"):
+        ctl.track(ref, feedback=False, learning=False)

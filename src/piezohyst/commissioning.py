@@ -1025,11 +1025,16 @@ class CommissionedController:
         guard.reset()
         # lead-in: from rest to the first target, slowly enough for the step limit
         desired, cmd = self._lead_in(ff, limits, float(rt[min(d, n - 1)]), conditioning)
-        guard.ramp_to(float(cmd[0]))
-        ff.reset()
-        y_prev = 0.0
-        for x in desired[:-1]:
-            y_prev = guard.step(ff.step(float(x)))
+        try:
+            guard.ramp_to(float(cmd[0]))
+            ff.reset()
+            y_prev = 0.0
+            for x in desired[:-1]:
+                y_prev = guard.step(ff.step(float(x)))
+        except BaseException:
+            # (a fault here left the stage where the lead-in had taken it, 83 V: found by fuzzing)
+            guard.back_to_rest()
+            raise
         lead_samples = guard.sent
         y = np.empty(n)
         u = np.empty(n)
@@ -1086,6 +1091,7 @@ class CommissionedController:
                 eff[i] = corr_prev[i] + fade(k) * (corr[i] - corr_prev[i])  # type: ignore[index]
             return eff
 
+        finished = False
         try:
             if kernel is not None:
                 # the feedforward's state arrays as they are now (reset() replaces them)
@@ -1130,8 +1136,15 @@ class CommissionedController:
                     y_prev = yk
                     if learn and (k + 1) % p == 0:
                         end_of_cycle(k)
+            finished = True
         finally:
-            guard.ramp_to(limits.rest)  # leave the stage at rest (a later reset() is then no jump)
+            # leave the stage at rest (a later reset() is then no jump); after a fault, as far as
+            # the plant still answers, and the fault is what is raised (the ramp's own error
+            # replaced it: found by fuzzing)
+            if finished:
+                guard.ramp_to(limits.rest)
+            else:
+                guard.back_to_rest()
         return TrackingResult(t=np.arange(n) * dt, reference=r, output=y, command=u, period=per,
                               clipped=guard.clipped, label=label,
                               info={"mode": "step", "feedback": pid is not None, "learning": learn,

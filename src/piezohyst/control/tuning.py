@@ -608,13 +608,17 @@ def tune_integral_safely(
         desired, cmd = lead_in_after(ff, model, conditioning, level, lim, dt, rise_s=rise_s)
     else:
         desired, cmd = lead_in_from_rest(ff, model, level, lim, dt)
-    plant.ramp_to(float(cmd[0]))
     settle = max(int(round(0.05 / dt)), 20)
     desired = np.concatenate([desired, np.full(settle, level)])
-    ff.reset()
     ys = np.empty(desired.size)
-    for k, x in enumerate(desired):
-        ys[k] = plant.step(ff.step(float(x)))
+    try:
+        plant.ramp_to(float(cmd[0]))
+        ff.reset()
+        for k, x in enumerate(desired):
+            ys[k] = plant.step(ff.step(float(x)))
+    except BaseException:
+        plant.back_to_rest()  # (a fault here left the stage at the hold's voltage: found by fuzzing)
+        raise
     noise = float(np.std(np.diff(ys[-settle:])) / math.sqrt(2.0))
     ripple0 = math.sqrt(2.0) * noise  # the error's sample-to-sample RMS with the feedforward alone
     volts_per_um_reversed = max(volts_per_um, 1.0 / chord) if chord > 0 else volts_per_um
@@ -751,6 +755,7 @@ def tune_integral_safely(
                 and e["overshoot"] <= opt.overshoot_limit)
 
     ki_ok = 0.0
+    finished = False
     try:
         ki = opt.start_fraction * ki_model
         first = trial(ki)
@@ -768,8 +773,13 @@ def tune_integral_safely(
                 if trial(ki):
                     ki_ok = ki
                     break
+        finished = True
     finally:
-        plant.ramp_to(lim.rest)  # back to rest, smoothly, whatever happened
+        # back to rest, smoothly, whatever happened; after a fault the fault is what is raised
+        if finished:
+            plant.ramp_to(lim.rest)
+        else:
+            plant.back_to_rest()
 
     # What the experiments proved holds for tracking divided by the reversal ratio; what the model
     # allows (ki_top, its margins at its linearisation) divided by the large-signal slope ratio.
