@@ -178,8 +178,8 @@ from .identify.select import MODE_SEARCH_TOP, structural_mode_search
 from .identify.monotone import (DEAD_BINS, WEAK_CORRELATION, DeadRange, DeadRangeWarning, MonotoneRange,
                                 NotMonotoneWarning, dead_range, monotone_range, rising_part, butterfly_hint)
 from .models.base import Compensator, kind_class, kind_of
-from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, default_step_fraction, plant_mode,
-                    plant_u_range)
+from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, checked_excitation,
+                    default_step_fraction, plant_mode, plant_u_range)
 from .signals import (estimate_period, mode_inverse, noise_e_max, second_order_filter,
                       sensor_noise_rms, sinusoid, transfer_peak_mode)
 
@@ -1762,9 +1762,9 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     say(f"identification run ({cmd.size * dt:.3g} s)")
     if mode == "step":
         guard.reset()
-        if hasattr(plant, "excite"):  # compiled whole run (the VirtualRig), the same commands
+        if callable(getattr(plant, "excite", None)):  # compiled whole run (the VirtualRig), the same commands
             sent = guard.guard_table(cmd)
-            ds = plant.excite(sent)
+            ds = checked_excitation(plant, sent)  # (an ndarray back was an AttributeError deep inside)
         else:
             try:
                 y = guard.play(cmd)

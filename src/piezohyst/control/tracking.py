@@ -436,20 +436,32 @@ def track(
     -----
     A plant may also tell its actuator's limits as ``u_range = (low, high)`` volts (VirtualRig
     does); the PID then stops integrating in the direction of a clipped command (anti-windup
-    on the real saturation, wherever the PID's output enters).
+    on the real saturation, wherever the PID's output enters), and no command beyond it is sent:
+    a plant that does not clip and count (``clipped``) itself gets the command clipped here, and
+    ``clipped`` counts those. This is the paper's loop (Fig. 5) as it is: no limit on the
+    command's step, no ramp from rest; :func:`~piezohyst.commission` and its controller's
+    ``track`` add the safe layer (step limit, lead-in, back to rest after a fault) for a stage.
 
     Returns
     -------
     TrackingResult
         ``info["mode"]`` says how the plant was driven (``"step"`` or ``"buffered"``).
     """
-    from ..plant import check_plant, plant_mode, play_checked
+    from ..plant import check_plant, plant_mode, plant_u_range, play_checked
 
     r = as_signal("reference", reference, min_length=2)
     period = _check_period(period, r.size)
     if divergence_limit is not None:
         divergence_limit = as_scalar("divergence_limit", divergence_limit, positive=True)
     dt = check_plant(plant)
+    try:
+        rng = plant_u_range(plant)
+    except ValueError as exc:  # ("0,100" failed on float(',') deep inside: found by fuzzing)
+        raise ValueError(f"the plant's u_range ({type(plant).__name__}.u_range): {exc}") from None
+    # a plant that states its range but does not clip to it itself (the VirtualRig does, and counts
+    # what it clipped): the commands are clipped here, never sent beyond it (-39..161 V, and 4e6 V
+    # from a large gain, reached a 0..100 V plant: found by fuzzing)
+    clip_here = rng is not None and getattr(plant, "clipped", None) is None
     if feedback_at not in ("reference", "command"):
         raise ValueError(f"feedback_at must be 'reference' or 'command', got {feedback_at!r}")
     _check_controllers(feedforward, feedback)
@@ -461,9 +473,14 @@ def track(
         if feedforward is None:
             raise ValueError("a plant that plays tables needs a feedforward to compute its command table")
         u = feedforward.command(r) if hasattr(feedforward, "command") else _stream(feedforward, r)
+        n_clip = None
+        if clip_here:
+            assert rng is not None
+            n_clip = int(np.sum((u < rng[0]) | (u > rng[1])))
+            u = np.clip(u, rng[0], rng[1])
         y = play_checked(plant, u)
         return TrackingResult(t=np.arange(r.size, dtype=np.float64) * dt, reference=r, output=y, command=u,
-                              period=period if period is not None else estimate_period(r), clipped=None,
+                              period=period if period is not None else estimate_period(r), clipped=n_clip,
                               label=label, info={"mode": "buffered", "feedback_at": None, "feedback": False})
     if feedback is not None:
         fdt = getattr(feedback, "dt", None)
@@ -481,7 +498,7 @@ def track(
     u = np.empty(n)
     y_prev = 0.0  # the plant starts at rest
     # the plant's actuator limits, if it tells them, drive the PID's anti-windup
-    watch = LoopWatch(r, u_range=getattr(plant, "u_range", None), feedback_on=feedback is not None,
+    watch = LoopWatch(r, u_range=rng, feedback_on=feedback is not None,
                       limit=limit, dt=dt, describe=lambda: _describe(feedforward, feedback, feedback_at))
     sat = 0
     at_ref = feedback_at == "reference"
@@ -502,6 +519,8 @@ def track(
     fb_step = feedback.step if feedback is not None else None
     pstep = plant.step
     dropouts = SensorDropouts(dt, f"the plant ({type(plant).__name__})")
+    lo_u, hi_u = rng if (clip_here and rng is not None) else (-math.inf, math.inf)
+    n_clip = 0
     for k in range(0 if not compiled else n, n):
         rk = r[k]
         fb = fb_step(rk - y_prev, sat) if fb_step is not None else 0.0
@@ -512,12 +531,14 @@ def track(
         else:
             uk = ff_step(rk) + fb
         sat = watch.command(k, uk)
-        yk = dropouts.take(measured(pstep(uk)))
+        sent = lo_u if uk < lo_u else hi_u if uk > hi_u else uk
+        n_clip += sent != uk
+        yk = dropouts.take(measured(pstep(sent)))
         u[k] = uk
         y[k] = yk
         watch.output(k, yk, y)
         y_prev = yk
-    clipped = None
+    clipped = n_clip if clip_here else None
     if clipped0 is not None:
         clipped = int(plant.clipped) - (0 if reset else int(clipped0))
     return TrackingResult(t=np.arange(n, dtype=np.float64) * dt, reference=r, output=y, command=u,

@@ -190,6 +190,9 @@ def check_u_range(u_range: Any) -> tuple[float, float] | None:
     """``(low, high)`` volts, finite and ordered, or None."""
     if u_range is None:
         return None
+    if isinstance(u_range, (str, bytes, dict)) or (hasattr(u_range, "keys") and callable(u_range.keys)):
+        # (a dict was read as its keys, {0: 0, 1: 100} as 0..1 V: found by fuzzing)
+        raise ValueError(f"u_range must be (low, high) in volts, got {u_range!r}")
     try:
         lo, hi = (float(v) for v in u_range)
     except (TypeError, ValueError):

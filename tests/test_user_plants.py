@@ -1,0 +1,112 @@
+"""A user's own plant through the Plant protocol: what piezohyst sends it and how it says what is
+wrong with it. Found by a helper session plugging in plants that record every command."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import piezohyst as ph
+
+DT = 1e-3
+
+
+class LoggingStage:
+    """Eight play operators, 0..100 V -> about 0..17 um; records every command it receives and does
+    not clip (a bare amplifier driver)."""
+
+    u_range = (0.0, 100.0)
+
+    def __init__(self) -> None:
+        self.dt = DT
+        self.model = ph.PrandtlIshlinskii(ph.equal_thresholds(8, 100.0), np.linspace(0.05, 0.01, 8))
+        self.log: list[float] = []
+        self.reset()
+
+    def reset(self) -> None:
+        self._st = self.model.stepper()
+        self.log.append(0.0)
+
+    def step(self, u: float) -> float:
+        self.log.append(float(u))
+        return float(self._st.step(u))
+
+
+class LoggingTablePlayer:
+    """The same stage behind a wave-table driver (BufferedPlant)."""
+
+    u_range = (0.0, 100.0)
+    dt = DT
+
+    def __init__(self) -> None:
+        self.model = ph.PrandtlIshlinskii(ph.equal_thresholds(8, 100.0), np.linspace(0.05, 0.01, 8))
+        self.tables: list[np.ndarray] = []
+
+    def play(self, u: np.ndarray) -> np.ndarray:
+        self.tables.append(np.array(u, dtype=float))
+        return self.model.simulate(np.asarray(u, dtype=float))
+
+
+@pytest.fixture(scope="module")
+def feedforward():
+    stage = LoggingStage()
+    ds = ph.open_loop(stage, ph.sinusoid(1.0, 2, 0.0, 100.0, DT))
+    return ph.InversePIFeedforward(ph.fit_pi(ds.u, ds.y, n=8, method="lsq").model)
+
+
+def test_track_never_sends_a_command_beyond_the_range_the_plant_states(feedforward):
+    """ph.track sent -39..161 V to a plant stating 0..100 V (a reference beyond the stroke), and
+    4e6 V from a large proportional gain, before its checks stopped the run."""
+    stage = LoggingStage()
+    out = ph.track(stage, ph.sinusoid(2.0, 3, -5.0, 30.0, DT), feedforward=feedforward)
+    assert min(stage.log) >= 0.0 and max(stage.log) <= 100.0
+    assert out.clipped == int(np.sum((out.command < 0.0) | (out.command > 100.0))) > 0
+    stage = LoggingStage()
+    with pytest.raises(ph.UnstableLoopError):
+        ph.track(stage, ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedback=ph.PID(kp=1e6, dt=DT))
+    assert min(stage.log) >= 0.0 and max(stage.log) <= 100.0
+    player = LoggingTablePlayer()
+    out = ph.track(player, ph.sinusoid(2.0, 3, -1.0, 20.0, DT), feedforward=feedforward)
+    assert player.tables[-1].min() >= 0.0 and player.tables[-1].max() <= 100.0 and out.clipped > 0
+
+
+@pytest.mark.parametrize("bad", ["0,100", {0: 0.0, 1: 100.0}, (100.0, 0.0)])
+def test_a_plant_range_that_is_not_a_range_is_named(feedforward, bad):
+    """A string failed on float(',') deep inside ph.track; a dict was read as its keys (0..1 V)."""
+    stage = LoggingStage()
+    stage.u_range = bad
+    with pytest.raises(ValueError, match=r"u_range"):
+        ph.track(stage, ph.sinusoid(2.0, 2, 4.0, 12.0, DT), feedforward=feedforward)
+    with pytest.raises(ValueError, match=r"u_range"):
+        ph.open_loop(stage, ph.sinusoid(1.0, 1, 0.0, 100.0, DT))
+    assert stage.log == [0.0]  # nothing sent but the rest it started at
+
+
+class WithExcite(LoggingStage):
+    """A plant with a fast path of its own, ``excite(u)``."""
+
+    answer = "dataset"
+
+    def excite(self, u):
+        if self.answer == "array":
+            return self.model.simulate(np.asarray(u))
+        self.reset()
+        y = np.array([self.step(v) for v in u])
+        return ph.Dataset(np.arange(len(u)) * self.dt, np.asarray(u, dtype=float), y)
+
+
+def test_a_plant_with_its_own_excite_is_held_to_the_protocol():
+    """open_loop passed commands beyond the plant's range straight to excite (-50..150 V to a
+    0..100 V plant) and returned whatever excite returned; commission failed with an
+    AttributeError deep inside when excite returned an array."""
+    stage = WithExcite()
+    with pytest.raises(ValueError, match="outside the plant's u_range"):
+        ph.open_loop(stage, np.linspace(-50.0, 150.0, 100))
+    assert stage.log == [0.0]
+    stage.answer = "array"
+    with pytest.raises(TypeError, match=r"WithExcite\.excite\(u\) must return a piezohyst Dataset"):
+        ph.open_loop(stage, np.linspace(0.0, 100.0, 100))
+    with pytest.raises(TypeError, match=r"WithExcite\.excite\(u\) must return a piezohyst Dataset"):
+        ph.commission(stage, tune=False)
+    stage.answer = "dataset"
+    assert len(ph.open_loop(stage, np.linspace(0.0, 100.0, 100))) == 100
