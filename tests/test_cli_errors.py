@@ -115,6 +115,7 @@ def make_inputs(root: Path) -> dict[str, str]:
                 d[k] = v
         text(name + ".json", json.dumps(d))
 
+    model("fit_text", {"fit": {"input_range_V": "0..100"}})
     model("schema_neg", {"schema": "piezohyst.model/-7"})
     model("schema_new", {"schema": "piezohyst.model/99"})
     model("schema_word", {"schema": "piezohyst.model/two"})
@@ -420,6 +421,8 @@ CASES: list[Case] = [
     C("identify --decimal semicolon", "identify {data} --model pi --decimal ;", "--decimal"),
     C("identify --encoding unknown", "identify {data} --model pi --encoding klingon", "klingon"),
     C("identify a late decimal comma", "identify {latecomma} --model pi --fs 1000", "--decimal ,"),
+    C("compensate a fit block edited by hand", "compensate --model {fit_text} --reference {ref} -o {root}/c11.csv",
+      "input_range_V"),
 ]
 
 #: Python keyword spelling that must not reach a command-line user

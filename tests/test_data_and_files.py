@@ -124,6 +124,53 @@ def test_version_1_model_files_still_load(tmp_path):
     assert m == ph.PrandtlIshlinskii([0.0, 20.0, 40.0], [0.02, 0.002, 0.001], offset=0.5)
 
 
+def test_a_preisach_file_of_the_first_kind_still_loads():
+    """tests/data/preisach_first_kind.json was written by commit 1047e85 (schema 2, the Preisach
+    kind's triangle of n (n + 1) / 2 weights, before the edge strips joined it under the same
+    schema version) and was refused by every later version. The predictions below are that
+    commit's own (Preisach.simulate of the input here, printed to 15 digits)."""
+    from pathlib import Path
+
+    m = ph.load_model(Path(__file__).parent / "data" / "preisach_first_kind.json")
+    u = np.concatenate([np.linspace(0, 100, 11), np.linspace(100, 20, 9), np.linspace(20, 70, 6)])
+    then = [0.3, 0.809660035084945, 1.32139312387802, 1.83727232008737, 2.34835019319652, 2.85702740475559,
+            3.37504759145696, 3.89983581192528, 4.43816009992749, 4.97511683781398, 5.5113898006426,
+            5.5113898006426, 5.00472264723955, 4.49644395701992, 3.98494219316712, 3.45990785860161,
+            2.92810723867974, 2.41178607273011, 1.89593951013703, 1.38104215425706, 1.38104215425706,
+            1.88722606098956, 2.39257003708954, 2.89781763208755, 3.41075503954828, 3.9287279571202]
+    np.testing.assert_allclose(m.simulate(u), then, rtol=1e-13, atol=1e-13)
+
+
+def test_hand_edited_model_files(tmp_path):
+    """Booleans in arrays were read as 1.0 (weights[0] = true moved the prediction by 18 um), a
+    duplicate key's last value won, a byte-order mark was refused in Python's words, and a fit
+    block compensate reads crashed it ("0..100") or set a 1e99 V amplifier range (fuzzing)."""
+    good = ph.PrandtlIshlinskii([0.0, 20.0, 40.0], [0.02, 0.002, 0.001], offset=0.5)
+    p = tmp_path / "m.json"
+    ph.save_model(good, p)
+    text = p.read_text()
+    doc = json.loads(text)
+
+    def variant(name, body, bom=False):
+        q = tmp_path / name
+        q.write_bytes((b"\xef\xbb\xbf" if bom else b"") + body.encode())
+        return q
+
+    assert ph.load_model(variant("bom.json", text, bom=True)) == good
+    bad = json.loads(text)
+    bad["parameters"]["weights"][0] = True
+    with pytest.raises(ph.ModelFileError, match=r"parameters\.weights\[0\] holds a boolean"):
+        ph.load_model(variant("bool.json", json.dumps(bad)))
+    dup = text.replace('"offset": 0.5', '"offset": 0.5, "offset": 50.0')
+    assert dup != text
+    with pytest.raises(ph.ModelFileError, match="'offset' appears twice"):
+        ph.load_model(variant("dup.json", dup))
+    for fit in ("hello", {"input_range_V": "0..100"}, {"input_range_V": [5]}, {"input_range_V": ["a", "b"]},
+                {"input_range_V": [-1e99, 1e99]}, {"input_range_V": [100, 0]}, {"largest_loop_V": -3}):
+        with pytest.raises(ph.ModelFileError, match=r"fit"):
+            ph.load_model(variant("fit.json", json.dumps({**doc, "fit": fit})))
+
+
 def test_deeply_nested_model_file_is_refused(tmp_path):
     p = tmp_path / "deep.json"
     p.write_text('{"schema": "piezohyst.model/2", "kind": "rate-dependent", "parameters": ' + "[" * 100000 + "]" * 100000 + "}")

@@ -57,7 +57,7 @@ def dumps_strict(obj: Any, **kw: Any) -> str:
 
 
 def loads_strict(text: str, *, bad_constant: Callable[[str], Exception],
-                 bad_number: Callable[[str], Exception]) -> Any:
+                 bad_number: Callable[[str], Exception], object_pairs_hook: Any = None) -> Any:
     """``json.loads`` as the standard defines JSON, the reverse of :func:`dumps_strict`: ``NaN`` and
     ``Infinity`` raise ``bad_constant(name)``, a number beyond float range ``bad_number(text)``."""
     def constant(name: str) -> Any:
@@ -69,7 +69,7 @@ def loads_strict(text: str, *, bad_constant: Callable[[str], Exception],
             raise bad_number(token)
         return v
 
-    return json.loads(text, parse_constant=constant, parse_float=number)
+    return json.loads(text, parse_constant=constant, parse_float=number, object_pairs_hook=object_pairs_hook)
 
 
 class OutputError(OSError, ValueError):

@@ -234,8 +234,9 @@ def model_from_dict(doc: Any, *, source: str = "model") -> Any:
         raise ModelFileError(f"{source}: unknown model kind {kind!r}; known kinds are {kinds()}") from None
     text = _text_in_arrays(params, "parameters")
     if text:
-        raise ModelFileError(f"{source}: {text[0]} holds text ({text[1]!r:.40}) where a number belongs; a model "
-                             "file's numbers are JSON numbers, not strings")
+        what = "a boolean" if isinstance(text[1], bool) else "text"
+        raise ModelFileError(f"{source}: {text[0]} holds {what} ({json.dumps(text[1])[:40]}) where a number belongs; "
+                             "a model file's numbers are JSON numbers, not strings or true/false")
     huge = _huge_number(params, "parameters")
     if huge:
         # (found by fuzzing: weights of 1e308 loaded, summed to inf and simulated to NaN, silently)
@@ -327,9 +328,9 @@ def _first_value(obj: Any, path: str, bad: Callable[[Any, bool], bool]) -> tuple
 
 
 def _text_in_arrays(obj: Any, path: str) -> tuple[str, str] | None:
-    """The path of the first list item that is a string (``"0.0307"`` for a weight) and the string,
-    or None."""
-    return _first_value(obj, path, lambda v, in_list: in_list and isinstance(v, str))
+    """The path of the first list item that is a string (``"0.0307"`` for a weight) or a boolean
+    (``true`` was read as 1.0: found by fuzzing), and the item, or None."""
+    return _first_value(obj, path, lambda v, in_list: in_list and isinstance(v, (str, bool)))
 
 
 #: The largest magnitude a model file's parameter may have: far beyond any physical value in any
@@ -349,11 +350,23 @@ def _strict_loads(text: str, source: str) -> Any:
     """JSON as the standard defines it: NaN, Infinity and numbers beyond float range are refused."""
     from ._fileio import loads_strict
 
+    def unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        # (a second "offset" silently won over the first; a second "kind" gave a puzzling message:
+        # found by fuzzing)
+        out: dict[str, Any] = {}
+        for k, v in pairs:
+            if k in out:
+                raise ModelFileError(f"{source}: the key {k!r} appears twice in one object; which one is meant "
+                                     "cannot be told: keep one")
+            out[k] = v
+        return out
+
     return loads_strict(
         text,
         bad_constant=lambda name: ModelFileError(f"{source}: {name} is not a JSON number; a model file holds "
                                                  "finite numbers only"),
-        bad_number=lambda num: ModelFileError(f"{source}: the number {num[:40]} is beyond double precision"))
+        bad_number=lambda num: ModelFileError(f"{source}: the number {num[:40]} is beyond double precision"),
+        object_pairs_hook=unique)
 
 
 def load_model_document(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -384,7 +397,7 @@ def load_model_document(path: str | os.PathLike[str]) -> dict[str, Any]:
     if not raw.strip():
         raise ModelFileError(f"{p}: the file is empty")
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")  # (a byte-order mark, as some Windows editors save: found by fuzzing)
     except UnicodeDecodeError:
         raise ModelFileError(f"{p}: not a text file (cannot decode it as UTF-8); a model file is JSON") from None
     try:
@@ -395,7 +408,37 @@ def load_model_document(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise ModelFileError(f"{p}: nested too deeply to be a model file") from None
     if _depth(doc, MAX_DEPTH) > MAX_DEPTH:
         raise ModelFileError(f"{p}: nested deeper than {MAX_DEPTH} levels; not a model file")
+    if isinstance(doc, dict):
+        _check_fit_block(doc.get("fit"), str(p))
     return doc  # type: ignore[no-any-return]
+
+
+#: The largest voltage a model file's ``fit`` block may state (its record's input range, its
+#: largest loop): far beyond any piezo amplifier (they reach about 1.5 kV), so a hand-edited range
+#: of 1e99 V, which compensate and export take for the amplifier's range, is refused.
+MAX_RECORD_VOLTS = 1e5
+
+
+def _check_fit_block(fit: Any, source: str) -> None:
+    """The ``fit`` block's figures that the command line reads (the input range the model was
+    identified on sets the amplifier's default range; its largest loop, the extrapolation warning):
+    a hand-edited one was an internal error in ``compensate`` ("0..100", one number, text, a
+    string for the block: found by fuzzing) or a range of 1e99 V that the C code never clipped to."""
+    if fit is None:
+        return
+    if not isinstance(fit, dict):
+        raise ModelFileError(f"{source}: 'fit' is {type(fit).__name__}, not an object of the fit's figures")
+    rng = fit.get("input_range_V")
+    if rng is not None:
+        ok = (isinstance(rng, list) and len(rng) == 2
+              and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in rng))
+        if not ok or not rng[0] < rng[1] or max(abs(rng[0]), abs(rng[1])) > MAX_RECORD_VOLTS:
+            raise ModelFileError(f"{source}: fit.input_range_V must be [low, high] in volts, low < high, within "
+                                 f"{MAX_RECORD_VOLTS:g} V of 0 (the record's input range), got {json.dumps(rng)[:60]}")
+    loop = fit.get("largest_loop_V")
+    if loop is not None and not (isinstance(loop, (int, float)) and not isinstance(loop, bool)
+                                 and 0.0 <= loop <= 2.0 * MAX_RECORD_VOLTS):
+        raise ModelFileError(f"{source}: fit.largest_loop_V must be a number of volts >= 0, got {json.dumps(loop)[:60]}")
 
 
 def load_model(path: str | os.PathLike[str]) -> Any:
