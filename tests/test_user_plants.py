@@ -110,3 +110,30 @@ def test_a_plant_with_its_own_excite_is_held_to_the_protocol():
         ph.commission(stage, tune=False)
     stage.answer = "dataset"
     assert len(ph.open_loop(stage, np.linspace(0.0, 100.0, 100))) == 100
+
+
+class LateSensor(LoggingStage):
+    """The stage read ``delay`` samples late (a buffered data-acquisition read, a slow link)."""
+
+    def __init__(self, delay: int) -> None:
+        self.delay = delay
+        super().__init__()
+
+    def reset(self) -> None:
+        super().reset()
+        self._line = [0.0] * self.delay
+
+    def step(self, u: float) -> float:
+        self._line.append(super().step(u))
+        return self._line.pop(0)
+
+
+@pytest.mark.parametrize("delay", [50, 150])
+def test_a_sensor_read_many_samples_late_is_named(delay):
+    """50 samples late, the stage was refused as not monotone with a reversed range to commission in
+    (71..29 V, which commission itself refuses); 150 late, as an amplifier switched off."""
+    with pytest.raises(ValueError, match=r"follows the command about \d+ samples .* late") as info:
+        ph.commission(LateSensor(delay), tune=False)
+    lag = int(str(info.value).split("about ")[1].split(" samples")[0])
+    assert delay <= lag <= delay + 30, lag  # (the loop's own phase adds a few samples)
+    assert "u_range=(71" not in str(info.value)

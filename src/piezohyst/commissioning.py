@@ -1584,8 +1584,32 @@ MONOTONE_MARGIN = 0.02
 _narrowing = threading.local()
 
 
+def late_follow(u: FloatArray, y: FloatArray, dt: float) -> tuple[int, float] | None:
+    """``(lag, r)`` where the output follows the command ``lag`` samples late with correlation
+    ``r >= 0.9`` (lags up to a quarter of the record, by FFT cross-correlation), and no lag of a
+    few samples does as well; None otherwise. A sensor read 50 or more samples late made a stage
+    look not monotone (and the suggested range came out reversed) or "hardly following" the
+    command (found by fuzzing)."""
+    a = np.asarray(u, dtype=np.float64) - float(np.mean(u))
+    b = np.asarray(y, dtype=np.float64) - float(np.mean(y))
+    n = a.size
+    if n < 16 or not (np.any(a) and np.any(b)):
+        return None
+    size = 1 << int(math.ceil(math.log2(2 * n)))
+    # sum_k y[k + lag] u[k] for lags 0 .. n/4, scaled by the overlap: the correlation at each lag
+    # (the energies over the whole record stand for the overlap's: a verdict, not a figure)
+    xc = np.fft.irfft(np.fft.rfft(b, size) * np.conj(np.fft.rfft(a, size)), size)[: n // 4]
+    overlap = n - np.arange(xc.size)
+    r = xc * (n / overlap) / math.sqrt(float(np.sum(a**2)) * float(np.sum(b**2)))
+    lag = int(np.argmax(r))
+    best = float(r[lag])
+    if best < 0.9 or lag <= 4 or float(np.max(r[:5])) >= 0.9:
+        return None
+    return lag, min(best, 1.0)
+
+
 def _commission_where_monotone(plant: Any, call: dict[str, Any], mono: MonotoneRange, limits: CommandLimits,
-                               own_excitation: bool) -> "CommissionedController":
+                               own_excitation: bool, late_said: str = "") -> "CommissionedController":
     """The identification showed the stage not monotone at an end of the range (a butterfly
     loop): commission again within the part where it is, with a warning; or, where that cannot be
     done safely (an excitation of the caller's, a rest command outside that part, a second time),
@@ -1596,9 +1620,15 @@ def _commission_where_monotone(plant: Any, call: dict[str, Any], mono: MonotoneR
     new_hi = hi if mono.high is None else max(mono.high - margin, lo)
     what = mono.describe(lo, hi)
     fix = f"commission(plant, u_range=({new_lo:.4g}, {new_hi:.4g}))"
+    if not new_hi - new_lo > 0.0:
+        # (the range suggested came out reversed, 71..29 V: found by fuzzing, on a stage whose
+        # sensor lagged 50 samples)
+        raise ValueError(late_said + f"{what.split(': the stage is not monotone')[0]}: no part of the range is left "
+                         "where it is monotone, which no stage does; a sensor read late (a delay of many samples, a "
+                         "buffer between the plant and the stage) looks so: check what step() returns")
     if own_excitation or getattr(_narrowing, "active", False) or not new_lo <= limits.rest <= new_hi \
             or not new_hi - new_lo > 0.2 * (hi - lo):
-        raise ValueError(f"{what}; {fix}")
+        raise ValueError(late_said + f"{what}; {fix}")
     warnings.warn(f"{what}. Commissioning again within {new_lo:.4g}..{new_hi:.4g} V, the controller's range "
                   f"from now on ({100 * MONOTONE_MARGIN:g} % of the range inside that)", NotMonotoneWarning, stacklevel=3)
     return _commission_within(plant, call, new_lo, new_hi)
@@ -1779,6 +1809,11 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     with np.errstate(invalid="ignore", divide="ignore"):
         r_run = float(np.corrcoef(ds.u[warmup:], ds.y[warmup:])[0, 1])
     # (a falling output, r < 0, is below the bound too; NaN, a constant output, is not above it)
+    late = late_follow(ds.u[warmup:], ds.y[warmup:], dt) if not r_run >= 0.9 else None
+    late_said = "" if late is None else (
+        f"the output follows the command about {late[0]} samples ({late[0] * dt:.3g} s) late (correlation {late[1]:.2f} "
+        f"at that lag, {r_run:.2f} without it): a sensor read that late, or a buffer between {type(plant).__name__} "
+        "and the stage, makes a stage look so; make step()/play() return the reading that follows each command. ")
     if not r_run >= WEAK_CORRELATION:
         rising = rising_part(ds.u[warmup:], ds.y[warmup:])
         hint = butterfly_hint(rising, "command", " V", "keep the command where it rises "
@@ -1795,7 +1830,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
                         f"saturates beyond?): commission(plant, u_range=({part[0]:.4g}, {part[1]:.4g})) identifies "
                         "it there")
             raise ValueError(
-                "the plant's displacement hardly follows the command over the identification run ("
+                late_said + "the plant's displacement hardly follows the command over the identification run ("
                 + (f"correlation {r_run:.2f}" if math.isfinite(r_run) else "a constant output")
                 + f" over {float(np.min(ds.u)):.4g}..{float(np.max(ds.u)):.4g} V; output span "
                 f"{float(np.ptp(ds.y[warmup:])):.3g} um): is the amplifier on, the stage connected, and does "
@@ -1817,7 +1852,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     if slower is not None:
         return slower
     if not mono.monotone:
-        return _commission_where_monotone(plant, call, mono, limits, excitation is not None)
+        return _commission_where_monotone(plant, call, mono, limits, excitation is not None, late_said)
     dead = dead_range(ds.u[warmup:], ds.y[warmup:])
     if dead.found:
         narrowed = _narrowed_to_moving(dead, limits)
