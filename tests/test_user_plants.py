@@ -137,3 +137,14 @@ def test_a_sensor_read_many_samples_late_is_named(delay):
     lag = int(str(info.value).split("about ")[1].split(" samples")[0])
     assert delay <= lag <= delay + 30, lag  # (the loop's own phase adds a few samples)
     assert "u_range=(71" not in str(info.value)
+
+
+def test_a_plant_whose_dt_is_single_precision(feedforward):
+    """np.float32(1e-3) is 0.0010000000474974513: PID(dt=1e-3) was refused as not matching it."""
+    stage = LoggingStage()
+    stage.dt = np.float32(1e-3)
+    out = ph.track(stage, ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedforward=feedforward,
+                   feedback=ph.PID(ki=50.0, dt=1e-3))
+    assert out.e_max_percent < 10.0
+    with pytest.raises(ValueError, match="does not match the plant's dt"):
+        ph.track(stage, ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedback=ph.PID(ki=50.0, dt=1.001e-3))

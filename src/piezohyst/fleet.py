@@ -536,7 +536,8 @@ def _resumed_row(model_path: Path, record: str, path: Path, opts: FitOptions) ->
 
     row = _empty_row(record, str(path), opts)
     row.update(resumed=True, model_file=str(model_path))
-    redo = "; pass force=True to refit it"
+    # (summary.csv of a command-line run said only "force=True": found by fuzzing)
+    redo = "; refit it with force=True (--force at the command line)"
     try:
         if model_path.stat().st_size > MAX_FILE_BYTES:
             raise ValueError(f"larger than {MAX_FILE_BYTES} bytes")
