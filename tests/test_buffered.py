@@ -200,3 +200,38 @@ def test_a_sensor_that_stops_reading_after_commissioning_is_said_to_have_stopped
     rig.play = lambda u: np.zeros(np.asarray(u).size)  # the sensor reads 0 from now on
     with pytest.raises(ValueError, match="did not move over this play .* sensor reading"):
         ctl.track(ph.sinusoid(5.0, 3, 0.3, 2.2, rig.dt))
+
+
+class _PlayFailsOnce:
+    """A wave-table driver whose ``play`` fails once, part-way, when told to (a USB hiccup)."""
+
+    def __init__(self, plant):
+        self._p, self.dt, self.u_range, self.fail_next = plant, plant.dt, plant.u_range, False
+
+    def play(self, u):
+        if self.fail_next:
+            self.fail_next = False
+            self._p.play(np.asarray(u)[: len(u) // 2])  # half the table went out
+            raise OSError("transfer aborted")
+        return self._p.play(u)
+
+
+def test_a_table_run_ends_at_rest_and_a_failed_play_is_not_assumed_away():
+    """A table ended at its last command (9.6 V here), and a later commission started with a jump
+    from there to rest; after a play that failed part-way the next table began from the previous
+    play's end, a jump of 4 V against a 3.9 V limit (found by fuzzing)."""
+    stage = Recorder(_PlayFailsOnce(MaxwellSlipStage(seed=0)))
+    ctl = ph.commission(stage)
+    y = ctl.identification.y
+    lo, span = float(y.min()), float(np.ptp(y))
+    ctl.track(ph.sinusoid(2.0, 3, lo + 0.5 * span, lo + 0.8 * span, stage.dt), learning=False)
+    assert stage.commands[-1] == pytest.approx(ctl.limits.rest, abs=1e-12)  # back at rest
+    assert ctl.info["held_command"] == pytest.approx(ctl.limits.rest, abs=1e-12)
+    stage._p.fail_next = True
+    with pytest.raises(OSError, match="transfer aborted"):
+        ctl.track(ph.sinusoid(2.0, 3, lo + 0.5 * span, lo + 0.8 * span, stage.dt), learning=False)
+    with pytest.raises(ValueError, match="stopped part-way"):
+        ctl.track(ph.sinusoid(2.0, 3, lo + 0.5 * span, lo + 0.8 * span, stage.dt), learning=False)
+    ctl.info["held_command"] = ctl.limits.rest  # the user brought it back to rest and says so
+    out = ctl.track(ph.sinusoid(2.0, 3, lo + 0.5 * span, lo + 0.8 * span, stage.dt), learning=False)
+    assert out.e_max_percent < 5.0

@@ -1166,7 +1166,13 @@ class CommissionedController:
         plant = self.plant
         dt = plant.dt
         limits = self._limits()
-        guard = GuardedPlant(plant, limits, last=self.info.get("held_command", limits.rest))
+        held = self.info.get("held_command", limits.rest)
+        if held is None or not math.isfinite(held):
+            raise ValueError("the last table played stopped part-way (the plant's play() failed): the amplifier may "
+                             "hold any command of it, and the next table would start with a jump from where it is "
+                             "assumed to be; bring the stage to rest, then say so (ctl.info['held_command'] = the rest "
+                             f"command, {limits.rest:g} V)")
+        guard = GuardedPlant(plant, limits, last=float(held))
         n = r.size
         per = period if period is not None else estimate_period(r)
         folded = per is not None and n >= 2 * per
@@ -1186,9 +1192,19 @@ class CommissionedController:
             cmd = ff.command(np.concatenate([desired[:-1], targets]))
             lead = desired.size - 1
             pre = limits.ramp(guard.last, min(max(float(cmd[0]), limits.low), limits.high), dt)
-            table = guard.guard_table(np.concatenate([pre, cmd]))
-            y_all = self._bridge_glitches(self._play(table), guard)
-            self.info["held_command"] = guard.last
+            # every table ends back at rest, as every run on a per-sample plant does (it ended at its
+            # last command, and a later commission() on the stage started with a jump from there to
+            # rest: found by fuzzing)
+            post = limits.ramp(min(max(float(cmd[-1]), limits.low), limits.high), limits.rest, dt)
+            table = guard.guard_table(np.concatenate([pre, cmd, post]))
+            try:
+                played = self._play(table)
+            except BaseException:
+                self.info["held_command"] = math.nan  # where it stopped is not known
+                raise
+            self.info["held_command"] = float(table[-1])
+            y_all = self._bridge_glitches(played, guard)
+            y_all = y_all[: y_all.size - post.size]
             if float(np.ptp(table)) > 0.0 and not float(np.ptp(y_all)) > 0.0:
                 # a sensor that reads one value whatever the command: learning drove the commands to
                 # the range's end against it, and the warning blamed the range (found by fuzzing)
@@ -1204,7 +1220,7 @@ class CommissionedController:
             e = np.where(clipped, 0.0, e)
             plays.append(rms)
             if best is None or rms < best[0]:
-                best = (rms, y, table[pre.size + lead:])
+                best = (rms, y, table[pre.size + lead:table.size - post.size])
             else:
                 break  # the error stopped falling: the best play stands
             if len(plays) > 1 and rms > 0.95 * min(plays[:-1]):
