@@ -233,9 +233,13 @@ def test_resume_skips_done_records_and_checks_they_still_apply(tmp_path, monkeyp
     assert [(out / "models" / f"{f.stem}.json").stat().st_mtime_ns for f in files] == stamp  # not rewritten
     cols = ["record", "status", "fit_rmse_um", "loop_width_um", "gain_um_per_v", "elapsed_s"]
     pd.testing.assert_frame_equal(again[cols], first[cols])
-    # other options: refused up front, naming what differs
-    with pytest.raises(ValueError, match="other options.*n None there, 10 now"):
+    # other options: refused up front, naming what differs (as they act on the fit: the P-I
+    # default size written out)
+    with pytest.raises(ValueError, match="other options.*n 20 there, 10 now"):
         identify_many(files, client="serial", out=out, n=10)
+    # the default size given, or a seed least squares does not use, is no other option: resumed
+    # (both were refused, and every record waited for a refit that changes nothing: fuzzing)
+    assert identify_many(files, client="serial", out=out, n=20, seed=5)["resumed"].all()
     # a data file that changed since its model was made: an error row, not a stale model
     ds = ph.load_dataset(files[1])
     ph.save_dataset(files[1], ph.Dataset(ds.t, ds.u, ds.y * 1.01), force=True)

@@ -520,12 +520,28 @@ def _file_sha256(path: Path) -> str | None:
         return None  # not readable here (only on the workers): not checked
 
 
+def _effective_options(d: dict[str, Any]) -> dict[str, Any]:
+    """The options as they act on the fit: the P-I default size written out (``n`` None is 20 for
+    ``lsq`` and ``pso``), and what least squares does not use (``seed``, ``max_iter``, ``polish``)
+    left out. ``--n 20`` and ``--seed 5`` with ``lsq`` were "other options" than a default run's,
+    and every record was refused for a refit that would change nothing (found by fuzzing)."""
+    out = dict(d)
+    if out.get("kind") == "prandtl-ishlinskii" and out.get("method") in ("lsq", "pso") and out.get("n") is None:
+        out["n"] = 20
+    if out.get("method") == "lsq":
+        for k in ("seed", "max_iter", "polish"):
+            out.pop(k, None)
+    return out
+
+
 def _option_changes(before: Any, now: FitOptions) -> str:
-    """What differs between the options a model file records and this run's ("" if nothing)."""
-    now_d = json.loads(json.dumps(now.to_dict()))
+    """What differs between the options a model file records and this run's, as they act on the
+    fit (:func:`_effective_options`; "" if nothing)."""
     if not isinstance(before, dict):
         return "no options recorded"
-    diff = [f"{k} {before.get(k)!r} there, {v!r} now" for k, v in now_d.items() if before.get(k) != v]
+    now_d = _effective_options(json.loads(json.dumps(now.to_dict())))
+    then = _effective_options(before)
+    diff = [f"{k} {then.get(k)!r} there, {v!r} now" for k, v in now_d.items() if then.get(k) != v]
     return "; ".join(diff)
 
 
