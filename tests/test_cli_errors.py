@@ -103,6 +103,8 @@ def make_inputs(root: Path) -> dict[str, str]:
     doc = json.loads((root / "pi.json").read_text())
     ph.save_model(pv.bouc_wen_model(), root / "bw.json")
     f["bw"] = root / "bw.json"
+    ph.save_model(ph.models.RateDependent(fit.model, [0.01], [0.1], 1e-3), root / "rate1k.json")
+    f["rate1k"] = root / "rate1k.json"
 
     def model(name: str, change: dict) -> None:
         d = json.loads(json.dumps(doc))
@@ -423,6 +425,8 @@ CASES: list[Case] = [
     C("identify a late decimal comma", "identify {latecomma} --model pi --fs 1000", "--decimal ,"),
     C("compensate a fit block edited by hand", "compensate --model {fit_text} --reference {ref} -o {root}/c11.csv",
       "input_range_V"),
+    # it advised --fs, which track reads only for a --reference file
+    C("track a 1 kHz rate model on the 10 kHz rig", "track --model {rate1k} --freq 1", "--rig-settings"),
 ]
 
 #: Python keyword spelling that must not reach a command-line user

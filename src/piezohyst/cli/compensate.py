@@ -19,12 +19,17 @@ from typing import Any
 from ._common import UsageError, amplifier_range, check_u_options, console, print_json, shown
 
 
-def compensator_for(model: Any, dt: float | None, **limits: Any) -> Any:
-    """A model's compensator at sample period ``dt`` (any kind, through the model protocol)."""
+def compensator_for(model: Any, dt: float | None, *, on_rig: bool = False, **limits: Any) -> Any:
+    """A model's compensator at sample period ``dt`` (any kind, through the model protocol);
+    ``on_rig``: for a run on the virtual rig (``track``), whose rate the rig settings set."""
     if not getattr(model, "is_invertible", False):
         raise UsageError(f"the {model.kind} model is not invertible: it has no compensator")
     own = getattr(model, "dt", None)
     if model.dynamic and own is not None and dt is not None and abs(own - dt) > 1e-9 * own:
+        if on_rig:  # (it advised --fs, which track reads only for a --reference file: found by fuzzing)
+            raise UsageError(f"the model was identified at {1 / own:g} Hz (its lags are discretised at that rate) "
+                             f"but the rig runs at {1 / dt:g} Hz; run the rig at the model's rate with --rig-settings "
+                             f"FILE holding {{\"dt\": {own:g}}}, or identify the model at the rig's rate")
         raise UsageError(f"the model was identified at {1 / own:g} Hz (its lags are discretised at that rate) but "
                          f"the table would be sampled at {1 / dt:g} Hz; give --fs {1 / own:g} to resample the "
                          "reference to the model's rate, or identify the model at the table's rate")

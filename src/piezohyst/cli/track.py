@@ -156,7 +156,7 @@ def cmd_track(args: argparse.Namespace) -> int:
         return _print_track(args, rows, rig, extra={"controller": ctl.describe(), "written": written})
     model = load_model(args.model)
     try:
-        ff = compensator_for(model, rig.dt)
+        ff = compensator_for(model, rig.dt, on_rig=True)
     except (ValueError, TypeError) as exc:
         raise UsageError(f"{args.model}: no compensator from this model: {exc}") from None
     rows = []
