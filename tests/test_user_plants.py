@@ -148,3 +148,16 @@ def test_a_plant_whose_dt_is_single_precision(feedforward):
     assert out.e_max_percent < 10.0
     with pytest.raises(ValueError, match="does not match the plant's dt"):
         ph.track(stage, ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedback=ph.PID(ki=50.0, dt=1.001e-3))
+
+
+class DeadSensor(LoggingStage):
+    def step(self, u: float) -> float:
+        super().step(u)
+        return 3.0
+
+
+def test_a_dead_sensor_under_feedback_is_refused_not_tracked(feedforward):
+    """With integral feedback the command ran to the range's end against a sensor stuck at 3 um and
+    ph.track returned as if it had tracked (found by fuzzing)."""
+    with pytest.raises(ValueError, match=r"did not move over the run \(it read 3 um throughout"):
+        ph.track(DeadSensor(), ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedback=ph.PID(ki=50.0, dt=DT))

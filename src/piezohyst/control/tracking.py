@@ -479,6 +479,7 @@ def track(
             n_clip = int(np.sum((u < rng[0]) | (u > rng[1])))
             u = np.clip(u, rng[0], rng[1])
         y = play_checked(plant, u)
+        _check_the_output_moved(y, u, plant)
         return TrackingResult(t=np.arange(r.size, dtype=np.float64) * dt, reference=r, output=y, command=u,
                               period=period if period is not None else estimate_period(r), clipped=n_clip,
                               label=label, info={"mode": "buffered", "feedback_at": None, "feedback": False})
@@ -539,6 +540,7 @@ def track(
         y[k] = yk
         watch.output(k, yk, y)
         y_prev = yk
+    _check_the_output_moved(y, u, plant)
     clipped = n_clip if clip_here else None
     if clipped0 is not None:
         clipped = int(plant.clipped) - (0 if reset else int(clipped0))
@@ -547,6 +549,16 @@ def track(
                           clipped=clipped, label=label,
                           info={"mode": "step", "feedback_at": feedback_at if feedback is not None else None,
                                 "feedback": feedback is not None, "sensor_dropouts": dropouts.count})
+
+
+def _check_the_output_moved(y: FloatArray, u: FloatArray, plant: Any) -> None:
+    """Refuse a run whose output read one value throughout while the command moved: a dead sensor
+    or an amplifier switched off (with integral feedback the command ran to the range's end and the
+    run returned as if it had tracked: found by fuzzing). A real sensor's noise moves it."""
+    if y.size >= 2 and float(np.ptp(u)) > 0.0 and not float(np.ptp(y)) > 0.0:
+        raise ValueError(f"the plant's output did not move over the run (it read {float(y[0]):.6g} um throughout "
+                         f"while the command went {float(np.min(u)):.4g}..{float(np.max(u)):.4g} V): is "
+                         f"{type(plant).__name__}'s sensor reading and its amplifier on?")
 
 
 def _stream(stepper: Any, r: FloatArray) -> FloatArray:
