@@ -161,3 +161,20 @@ def test_a_dead_sensor_under_feedback_is_refused_not_tracked(feedforward):
     ph.track returned as if it had tracked (found by fuzzing)."""
     with pytest.raises(ValueError, match=r"did not move over the run \(it read 3 um throughout"):
         ph.track(DeadSensor(), ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedback=ph.PID(ki=50.0, dt=DT))
+
+
+class InvertedSensor(LoggingStage):
+    def step(self, u: float) -> float:
+        return -super().step(u)
+
+
+def test_a_loop_that_stops_for_a_cause_that_is_not_its_gains_says_so(feedforward):
+    """"lower the feedback gains" was the advice for an inverted sensor (whose loop drove the command
+    beyond the range's end and held it there) and for negative gains."""
+    with pytest.raises(ph.UnstableLoopError, match="reads the other way round"):
+        ph.track(InvertedSensor(), ph.sinusoid(2.0, 3, -12.0, -4.0, DT), feedback=ph.PID(ki=50.0, dt=DT))
+    with pytest.raises(ph.UnstableLoopError, match="a negative gain is positive feedback"):
+        ph.track(LoggingStage(), ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedback=ph.PID(ki=-50.0, dt=DT))
+    with pytest.raises(ph.UnstableLoopError, match="lower the feedback gains"):
+        ph.track(LoggingStage(), ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedforward=feedforward,
+                 feedback=ph.PID(kp=1e6, dt=DT))

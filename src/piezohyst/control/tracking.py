@@ -246,6 +246,27 @@ class LoopWatch:
         self.lo_u, self.hi_u = (float(u_range[0]), float(u_range[1])) if u_range is not None else (-math.inf, math.inf)
         self.watch_chatter = feedback_on and u_range is not None
         self.n_lo = self.n_hi = 0
+        #: the run's commands so far (the caller's array, filled as it goes), for the advice of a stop
+        self.commands: FloatArray | None = None
+        #: the run's outputs so far (likewise) and the feedback's gains (kp, ki, kd), for the same
+        self.outputs: FloatArray | None = None
+        self.gains: tuple[float, float, float] | None = None
+
+    def advice(self, k: int, y: FloatArray | None) -> str:
+        """What to do about a loop that stopped at sample k: lower the gains, unless the run shows
+        another cause (it said "lower the feedback gains" for an inverted sensor and for negative
+        gains: found by fuzzing)."""
+        if self.gains is not None and any(g < 0 for g in self.gains):
+            return "a negative gain is positive feedback on a stage that rises with its command: give gains >= 0"
+        if self.commands is not None and y is not None and k >= 20:
+            uu, yy = self.commands[: k], y[: k]
+            if not float(np.ptp(yy)) > 0.0:
+                went = (f"stayed at {float(uu[0]):.4g} V" if not float(np.ptp(uu)) > 0.0 else
+                        f"went {float(np.min(uu)):.4g}..{float(np.max(uu)):.4g} V")
+                return (f"the output did not move (it read {float(yy[0]):.6g} um throughout) while the command {went}: "
+                        "a dead sensor, an amplifier off, or commands held beyond the range's end (a sensor that "
+                        "reads the other way round drives them there); not the gains")
+        return "lower the feedback gains"
 
     def command(self, k: int, uk: float) -> int:
         """Check command k; return +1/-1 when it is above/below the actuator's range, else 0."""
@@ -260,7 +281,7 @@ class LoopWatch:
                     reason = (f"the loop oscillates between the amplifier's limits ({self.n_lo} commands below "
                               f"{self.lo_u:g} V and {self.n_hi} above {self.hi_u:g} V within samples "
                               f"{k - self.CHATTER + 1}..{k})")
-                    raise UnstableLoopError(f"{reason} with {self.describe()}; lower the feedback gains",
+                    raise UnstableLoopError(f"{reason} with {self.describe()}; {self.advice(k, self.outputs)}",
                                             reason=reason, sample=k)
                 self.n_lo = self.n_hi = 0
         return sat
@@ -271,7 +292,7 @@ class LoopWatch:
         if not math.isfinite(yk) or abs(yk - rk) > self.limit:
             reason = (f"the loop went unstable at sample {k} (t = {k * self.dt:.4g} s): output {yk!r} um against "
                       f"reference {rk:.4g} um")
-            raise UnstableLoopError(f"{reason}, with {self.describe()}; lower the feedback gains",
+            raise UnstableLoopError(f"{reason}, with {self.describe()}; {self.advice(k, y)}",
                                     reason=reason, sample=k)
         w = self.WINDOW
         if self.watch_window and k >= self.settle and k % w == w - 1:
@@ -283,7 +304,7 @@ class LoopWatch:
                          f"the reference spans {self.span:.4g} um)")
                 reason = (f"the loop stopped following: the error's RMS over samples {k - w + 1}..{k} "
                           f"is {rms:.4g} um, more than {scale}")
-                raise UnstableLoopError(f"{reason}, with {self.describe()}; lower the feedback gains",
+                raise UnstableLoopError(f"{reason}, with {self.describe()}; {self.advice(k, y)}",
                                         reason=reason, sample=k)
 
 
@@ -502,6 +523,9 @@ def track(
     # the plant's actuator limits, if it tells them, drive the PID's anti-windup
     watch = LoopWatch(r, u_range=rng, feedback_on=feedback is not None,
                       limit=limit, dt=dt, describe=lambda: _describe(feedforward, feedback, feedback_at))
+    watch.commands, watch.outputs = u, y
+    if feedback is not None:
+        watch.gains = tuple(float(getattr(feedback, g, 0.0)) for g in ("kp", "ki", "kd"))  # type: ignore[assignment]
     sat = 0
     at_ref = feedback_at == "reference"
     compiled = False
