@@ -240,6 +240,11 @@ def test_resume_skips_done_records_and_checks_they_still_apply(tmp_path, monkeyp
     # the default size given, or a seed least squares does not use, is no other option: resumed
     # (both were refused, and every record waited for a refit that changes nothing: fuzzing)
     assert identify_many(files, client="serial", out=out, n=20, seed=5)["resumed"].all()
+    # a file whose bytes changed but not its samples (a comment added, other line endings): still
+    # the record its model was fitted on (it was "changed" and left out until a refit: fuzzing)
+    text = files[2].read_text(encoding="utf-8")
+    files[2].write_bytes(("# checked by QA\n" + text).replace("\n", "\r\n").encode("utf-8"))
+    assert identify_many(files, client="serial", out=out)["resumed"].all()
     # a data file that changed since its model was made: an error row, not a stale model
     ds = ph.load_dataset(files[1])
     ph.save_dataset(files[1], ph.Dataset(ds.t, ds.u, ds.y * 1.01), force=True)

@@ -572,13 +572,27 @@ def _resumed_row(model_path: Path, record: str, path: Path, opts: FitOptions) ->
         return row, changes
     recorded = (doc.get("data") or {}).get("source_sha256")
     now = _file_sha256(path)
-    if recorded and now and recorded != now:
-        row["error"] = f"{path} changed since {model_path} was identified from it (its SHA-256 differs){redo}"
+    if recorded and now and recorded != now and not _same_samples(path, opts, (doc.get("data") or {}).get("sha256")):
+        row["error"] = f"{path} changed since {model_path} was identified from it (its samples differ){redo}"
         return row, ""
     for k, v in fleet["row"].items():
         if k in row and k not in ("record", "file", "resumed", "model_file", "outlier", "outlier_reason"):
             row[k] = float("nan") if v is None and isinstance(row[k], float) else v
     return row, ""
+
+
+def _same_samples(path: Path, opts: FitOptions, samples_sha256: Any) -> bool:
+    """Whether a record whose file's bytes changed still holds the samples its model was fitted on
+    (their own SHA-256, as the model file records it): an edited comment line or other line endings
+    made a record "changed" and dropped it from the batch until a refit (found by fuzzing)."""
+    if not isinstance(samples_sha256, str):
+        return False
+    from .data import load_dataset
+
+    try:
+        return bool(load_dataset(path, **opts.data_options()).sha256 == samples_sha256)
+    except (OSError, ValueError):
+        return False
 
 
 def _write_model(doc: dict[str, Any], path: Path, force: bool) -> Path:
