@@ -470,3 +470,21 @@ def test_cli_exits_2_when_no_record_is_identified(tmp_path, capsys):
     code = main(["fleet", "identify", str(tmp_path / "b2"), "--model", "pi", "--out", str(tmp_path / "o2"),
                  "--workers", "1", "--quiet", "--json"])
     assert code == 0 and json.loads(capsys.readouterr().out)["failed"] == 1
+
+
+def test_model_files_of_records_no_longer_in_the_batch_are_named(tmp_path, capsys):
+    """A record renamed after its batch was identified left its model file behind without a word
+    (found by fuzzing); it is named (never removed: it is the user's result)."""
+    files = write_simulated_batch(tmp_path / "b", 2, seed=3, fs=200.0, cycles=3)
+    out = tmp_path / "out"
+    identify_many(files, client="serial", out=out)
+    renamed = files[0].with_name("renamed-" + files[0].name)
+    files[0].rename(renamed)
+    df = identify_many([renamed, files[1]], client="serial", out=out)
+    assert [Path(q).name for q in df.attrs["orphaned_model_files"]] == [f"{files[0].stem}.json"]
+    assert (out / "models" / f"{files[0].stem}.json").is_file()
+    from piezohyst.cli import main
+
+    assert main(["fleet", "identify", str(renamed), str(files[1]), "--model", "pi", "--out", str(out),
+                 "--workers", "1", "--quiet"]) == 0
+    assert f"{files[0].stem}.json" in capsys.readouterr().out

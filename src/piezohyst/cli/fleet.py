@@ -100,9 +100,15 @@ def cmd_fleet_identify(args: argparse.Namespace) -> int:
                     "statistics": stats.to_dict(),
                     "failed_records": [{"record": r, "file": f, "error": e}
                                        for r, f, e in zip(failed["record"], failed["file"], failed["error"])],
-                    "rows": df.to_dict(orient="records")})
+                    "rows": df.to_dict(orient="records"),
+                    "orphaned_model_files": df.attrs.get("orphaned_model_files", [])})
         return _exit_code(df, ok)
     _print_report(df, stats, elapsed, where, summary, hist, out)
+    orphans = df.attrs.get("orphaned_model_files") or []
+    if orphans:
+        console().print(f"{len(orphans)} model file(s) in {out / 'models'} belong to no record of this batch (renamed "
+                        f"or removed?), left as they are: {', '.join(Path(q).name for q in orphans[:5])}"
+                        + (" ..." if len(orphans) > 5 else ""))
     return _exit_code(df, ok)
 
 
