@@ -178,3 +178,19 @@ def test_a_loop_that_stops_for_a_cause_that_is_not_its_gains_says_so(feedforward
     with pytest.raises(ph.UnstableLoopError, match="lower the feedback gains"):
         ph.track(LoggingStage(), ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedforward=feedforward,
                  feedback=ph.PID(kp=1e6, dt=DT))
+
+
+class InMetres(LoggingStage):
+    def step(self, u: float) -> float:
+        return super().step(u) * 1e-6
+
+
+def test_a_sensor_read_in_metres_is_warned_of():
+    """A 17 um stage read in metres commissioned a 1.7e-5 um stroke without a word (fuzzing)."""
+    with pytest.warns(UserWarning, match=r"moved 1\.\d+e-05 um over its whole range .* metres"):
+        ph.commission(InMetres(), tune=False)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ph.commission(LoggingStage(), tune=False)  # 17 um: nothing to say

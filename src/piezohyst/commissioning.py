@@ -1600,6 +1600,26 @@ MONOTONE_MARGIN = 0.02
 _narrowing = threading.local()
 
 
+#: The strokes (um, over the whole identification run) beyond which a reading is taken for one in
+#: another unit: no piezo stage moves less than a nanometre over its whole range, nor more than
+#: 10 cm.
+PLAUSIBLE_STROKE_UM = (1e-3, 1e5)
+
+
+def _warn_if_stroke_implausible(y: FloatArray, plant: Any) -> None:
+    """Warn where the stage's stroke over its whole range reads below a nanometre or above 10 cm:
+    a sensor read in metres (or in counts, nm) made every figure of the commissioning wrong by its
+    factor, silently (found by fuzzing: a 17 um stage read in metres commissioned a stroke of
+    1.7e-5 um)."""
+    stroke = float(np.ptp(y[np.isfinite(y)])) if np.isfinite(y).any() else 0.0
+    lo, hi = PLAUSIBLE_STROKE_UM
+    if 0.0 < stroke < lo or stroke > hi:
+        guess = "metres or millimetres" if stroke < lo else "nanometres or sensor counts"
+        warnings.warn(f"the stage moved {stroke:.3g} um over its whole range in the identification run, which no piezo "
+                      f"stage does: is {type(plant).__name__}.step()/play() reading in {guess}? piezohyst reads "
+                      "the displacement in micrometres, and every figure scales with it", UserWarning, stacklevel=3)
+
+
 def late_follow(u: FloatArray, y: FloatArray, dt: float) -> tuple[int, float] | None:
     """``(lag, r)`` where the output follows the command ``lag`` samples late with correlation
     ``r >= 0.9`` (lags up to a quarter of the record, by FFT cross-correlation), and no lag of a
@@ -1822,6 +1842,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
         y = guard.play(cmd)
         ds = Dataset(np.arange(cmd.size, dtype=np.float64) * dt, cmd, y, {"source": type(plant).__name__, "driven_by": "play"})
     ident_counts = guard.counts()
+    _warn_if_stroke_implausible(ds.y[warmup:], plant)
     with np.errstate(invalid="ignore", divide="ignore"):
         r_run = float(np.corrcoef(ds.u[warmup:], ds.y[warmup:])[0, 1])
     # (a falling output, r < 0, is below the bound too; NaN, a constant output, is not above it)
