@@ -170,7 +170,7 @@ import numpy as np
 
 from ._validation import FloatArray, as_count, as_flag, as_scalar, as_signal
 from .control.tracking import (LoopWatch, TrackingResult, UnstableLoopError, _check_period, lead_in_after,
-                               lead_in_from_rest)
+                               lead_in_from_rest, output_still)
 from .control.tuning import SafeTuningOptions, TuningResult, tune_integral_safely
 from .data import Dataset
 from .identify import FitResult, fit_model
@@ -1205,12 +1205,12 @@ class CommissionedController:
             self.info["held_command"] = float(table[-1])
             y_all = self._bridge_glitches(played, guard)
             y_all = y_all[: y_all.size - post.size]
-            if float(np.ptp(table)) > 0.0 and not float(np.ptp(y_all)) > 0.0:
+            still = output_still(y_all, table) if float(np.ptp(table)) > 0.0 else None
+            if still:
                 # a sensor that reads one value whatever the command: learning drove the commands to
                 # the range's end against it, and the warning blamed the range (found by fuzzing)
-                raise ValueError(f"the stage's output did not move over this play (it read {float(y_all[0]):.6g} um "
-                                 f"throughout while the command went {float(np.min(table)):.4g}..{float(np.max(table)):.4g} "
-                                 f"V): is the sensor reading and the amplifier on? Nothing was learnt from it")
+                raise ValueError(f"the stage's output did not move over this play {still}: is the sensor reading "
+                                 "and the amplifier on? Nothing was learnt from it")
             y = y_all[pre.size + lead:]
             e = r - y
             rms = float(np.sqrt(np.mean(e[window] ** 2)))
@@ -1620,7 +1620,7 @@ def _warn_if_stroke_implausible(y: FloatArray, plant: Any) -> None:
                       "the displacement in micrometres, and every figure scales with it", UserWarning, stacklevel=3)
 
 
-def late_follow(u: FloatArray, y: FloatArray, dt: float) -> tuple[int, float] | None:
+def late_follow(u: FloatArray, y: FloatArray) -> tuple[int, float] | None:
     """``(lag, r)`` where the output follows the command ``lag`` samples late with correlation
     ``r >= 0.9`` (lags up to a quarter of the record, by FFT cross-correlation), and no lag of a
     few samples does as well; None otherwise. A sensor read 50 or more samples late made a stage
@@ -1645,7 +1645,8 @@ def late_follow(u: FloatArray, y: FloatArray, dt: float) -> tuple[int, float] | 
 
 
 def _commission_where_monotone(plant: Any, call: dict[str, Any], mono: MonotoneRange, limits: CommandLimits,
-                               own_excitation: bool, late_said: str = "") -> "CommissionedController":
+                               own_excitation: bool, late_said: Callable[[], str] = lambda: ""
+                               ) -> "CommissionedController":
     """The identification showed the stage not monotone at an end of the range (a butterfly
     loop): commission again within the part where it is, with a warning; or, where that cannot be
     done safely (an excitation of the caller's, a rest command outside that part, a second time),
@@ -1659,12 +1660,12 @@ def _commission_where_monotone(plant: Any, call: dict[str, Any], mono: MonotoneR
     if not new_hi - new_lo > 0.0:
         # (the range suggested came out reversed, 71..29 V: found by fuzzing, on a stage whose
         # sensor lagged 50 samples)
-        raise ValueError(late_said + f"{what.split(': the stage is not monotone')[0]}: no part of the range is left "
+        raise ValueError(late_said() + f"{what.split(': the stage is not monotone')[0]}: no part of the range is left "
                          "where it is monotone, which no stage does; a sensor read late (a delay of many samples, a "
                          "buffer between the plant and the stage) looks so: check what step() returns")
     if own_excitation or getattr(_narrowing, "active", False) or not new_lo <= limits.rest <= new_hi \
             or not new_hi - new_lo > 0.2 * (hi - lo):
-        raise ValueError(late_said + f"{what}; {fix}")
+        raise ValueError(late_said() + f"{what}; {fix}")
     warnings.warn(f"{what}. Commissioning again within {new_lo:.4g}..{new_hi:.4g} V, the controller's range "
                   f"from now on ({100 * MONOTONE_MARGIN:g} % of the range inside that)", NotMonotoneWarning, stacklevel=3)
     return _commission_within(plant, call, new_lo, new_hi)
@@ -1846,11 +1847,15 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
     with np.errstate(invalid="ignore", divide="ignore"):
         r_run = float(np.corrcoef(ds.u[warmup:], ds.y[warmup:])[0, 1])
     # (a falling output, r < 0, is below the bound too; NaN, a constant output, is not above it)
-    late = late_follow(ds.u[warmup:], ds.y[warmup:], dt) if not r_run >= 0.9 else None
-    late_said = "" if late is None else (
-        f"the output follows the command about {late[0]} samples ({late[0] * dt:.3g} s) late (correlation {late[1]:.2f} "
-        f"at that lag, {r_run:.2f} without it): a sensor read that late, or a buffer between {type(plant).__name__} "
-        "and the stage, makes a stage look so; make step()/play() return the reading that follows each command. ")
+    def late_said() -> str:
+        """The lead of a refusal where the run's output follows its command many samples late."""
+        late = late_follow(ds.u[warmup:], ds.y[warmup:]) if not r_run >= 0.9 else None
+        return "" if late is None else (
+            f"the output follows the command about {late[0]} samples ({late[0] * dt:.3g} s) late (correlation "
+            f"{late[1]:.2f} at that lag, {r_run:.2f} without it): a sensor read that late, or a buffer between "
+            f"{type(plant).__name__} and the stage, makes a stage look so; make step()/play() return the reading "
+            "that follows each command. ")
+
     if not r_run >= WEAK_CORRELATION:
         rising = rising_part(ds.u[warmup:], ds.y[warmup:])
         hint = butterfly_hint(rising, "command", " V", "keep the command where it rises "
@@ -1867,7 +1872,7 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
                         f"saturates beyond?): commission(plant, u_range=({part[0]:.4g}, {part[1]:.4g})) identifies "
                         "it there")
             raise ValueError(
-                late_said + "the plant's displacement hardly follows the command over the identification run ("
+                late_said() + "the plant's displacement hardly follows the command over the identification run ("
                 + (f"correlation {r_run:.2f}" if math.isfinite(r_run) else "a constant output")
                 + f" over {float(np.min(ds.u)):.4g}..{float(np.max(ds.u)):.4g} V; output span "
                 f"{float(np.ptp(ds.y[warmup:])):.3g} um): is the amplifier on, the stage connected, and does "

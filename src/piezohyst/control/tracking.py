@@ -259,13 +259,10 @@ class LoopWatch:
         if self.gains is not None and any(g < 0 for g in self.gains):
             return "a negative gain is positive feedback on a stage that rises with its command: give gains >= 0"
         if self.commands is not None and y is not None and k >= 20:
-            uu, yy = self.commands[: k], y[: k]
-            if not float(np.ptp(yy)) > 0.0:
-                went = (f"stayed at {float(uu[0]):.4g} V" if not float(np.ptp(uu)) > 0.0 else
-                        f"went {float(np.min(uu)):.4g}..{float(np.max(uu)):.4g} V")
-                return (f"the output did not move (it read {float(yy[0]):.6g} um throughout) while the command {went}: "
-                        "a dead sensor, an amplifier off, or commands held beyond the range's end (a sensor that "
-                        "reads the other way round drives them there); not the gains")
+            still = output_still(y[: k], self.commands[: k])
+            if still:
+                return (f"the output did not move {still}: a dead sensor, an amplifier off, or commands held beyond "
+                        "the range's end (a sensor that reads the other way round drives them there); not the gains")
         return "lower the feedback gains"
 
     def command(self, k: int, uk: float) -> int:
@@ -575,14 +572,25 @@ def track(
                                 "feedback": feedback is not None, "sensor_dropouts": dropouts.count})
 
 
+def output_still(y: FloatArray, u: FloatArray) -> str | None:
+    """Where the output ``y`` read one value throughout (a real sensor's noise moves it), what it
+    read and what the command ``u`` did meanwhile: ``"(it read 3 um throughout) while the command
+    went 0..100 V"``; None where it moved."""
+    if y.size < 1 or float(np.ptp(y)) > 0.0:
+        return None
+    went = (f"went {float(np.min(u)):.4g}..{float(np.max(u)):.4g} V" if u.size and float(np.ptp(u)) > 0.0 else
+            f"stayed at {float(u[0]):.4g} V" if u.size else "was sent")
+    return f"(it read {float(y[0]):.6g} um throughout) while the command {went}"
+
+
 def _check_the_output_moved(y: FloatArray, u: FloatArray, plant: Any) -> None:
     """Refuse a run whose output read one value throughout while the command moved: a dead sensor
     or an amplifier switched off (with integral feedback the command ran to the range's end and the
-    run returned as if it had tracked: found by fuzzing). A real sensor's noise moves it."""
-    if y.size >= 2 and float(np.ptp(u)) > 0.0 and not float(np.ptp(y)) > 0.0:
-        raise ValueError(f"the plant's output did not move over the run (it read {float(y[0]):.6g} um throughout "
-                         f"while the command went {float(np.min(u)):.4g}..{float(np.max(u)):.4g} V): is "
-                         f"{type(plant).__name__}'s sensor reading and its amplifier on?")
+    run returned as if it had tracked: found by fuzzing)."""
+    still = output_still(y, u) if y.size >= 2 and float(np.ptp(u)) > 0.0 else None
+    if still:
+        raise ValueError(f"the plant's output did not move over the run {still}: is {type(plant).__name__}'s sensor "
+                         "reading and its amplifier on?")
 
 
 def _stream(stepper: Any, r: FloatArray) -> FloatArray:
