@@ -233,20 +233,22 @@ def _time_of_the_same_record(src: Source, ku: Key, ky: Key) -> Key | None:
 # ------------------------------------------------------------------------------------------------
 def _single_precision_resolution(raw: np.ndarray, t: np.ndarray) -> float | None:
     """The resolution (s) of a time column that holds single-precision numbers, at its largest
-    value; None where it holds finer ones."""
-    if raw.size < 3 or raw[-1] == raw[0] or not np.array_equal(raw, raw.astype(np.float32).astype(np.float64)):
+    value; None where it holds finer ones (told from its first samples at once, most often)."""
+    def single(x: np.ndarray) -> bool:
+        return bool(np.array_equal(x, x.astype(np.float32).astype(np.float64)))
+
+    if raw.size < 3 or raw[-1] == raw[0] or not single(raw[:1024]) or not single(raw):
         return None
     scale = float(t[-1] - t[0]) / float(raw[-1] - raw[0])  # the unit's factor to seconds
     return float(np.spacing(np.float32(np.max(np.abs(raw))))) * abs(scale)
 
 
-def _single_precision_grid(raw: np.ndarray, t: np.ndarray, mean: float) -> np.ndarray | None:
-    """The uniform grid ``t[0] + k mean`` where ``raw`` (the column as read) holds single-precision
-    numbers at most a quarter of a step apart and every sample lies within their resolution of
-    that grid (steps jittering by it are no sign of a non-uniform record, while a dropped sample,
-    half a step off the grid, still shows); None otherwise."""
-    resolution = _single_precision_resolution(raw, t)
-    if resolution is None or not resolution <= 0.25 * mean:
+def _single_precision_grid(t: np.ndarray, mean: float, resolution: float) -> np.ndarray | None:
+    """The uniform grid ``t[0] + k mean`` where the time column's single-precision numbers are at
+    most a quarter of a step apart (``resolution``, s) and every sample lies within that of the
+    grid (steps jittering by it are no sign of a non-uniform record, while a dropped sample, half a
+    step off the grid, still shows); None otherwise."""
+    if not resolution <= 0.25 * mean:
         return None
     grid = t[0] + np.arange(t.size) * mean
     return grid if float(np.max(np.abs(t - grid))) <= resolution else None
@@ -378,8 +380,10 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
             dev = np.abs(steps - med)
             j = int(np.argmax(dev))
         rel = float(dev[j]) / med
-        if float(dev[j]) > 0.0:  # single precision rounds the steps (even within the tolerance: dt 0.14 % off)
-            grid = _single_precision_grid(arrays["t"], t, mean)
+        # single precision rounds the steps (even within the tolerance: dt 0.14 % off)
+        single = _single_precision_resolution(arrays["t"], t) if float(dev[j]) > 0.0 else None
+        if single is not None:
+            grid = _single_precision_grid(t, mean, single)
             if grid is not None:
                 # (a float32 time column at t ~ 1000 s, steps of 1e-4 s rounded to 6.1e-5 or
                 # 1.22e-4, was "not uniform", and resampled at the median 1.22e-4 s lost 18 % of
@@ -396,12 +400,11 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
                             f"{labels['t']!r} (1 / median step = {1.0 / med:.6g} Hz); give one of them "
                             f"(fs= in Python, --fs at the command line) or resample")
         if rel > UNIFORM_TOLERANCE:
-            coarse = _single_precision_resolution(arrays["t"], t)
-            if coarse is not None and coarse > 0.25 * mean:
+            if single is not None and single > 0.25 * mean:
                 # (resampling at the median step, itself rounded, lost 18 % of the record)
                 raise DataError(
                     f"{where}: the time column {labels['t']!r} holds single-precision numbers, whose resolution "
-                    f"at its end ({float(t[-1]):.6g} s) is {coarse:.3g} s, {100 * coarse / mean:.3g} % of its mean "
+                    f"at its end ({float(t[-1]):.6g} s) is {single:.3g} s, {100 * single / mean:.3g} % of its mean "
                     f"step of {mean:.6g} s: its steps cannot be told from its rounding, and resampling would "
                     f"follow the rounding; write the time in double precision, or drop the column and give the "
                     f"sample rate (fs= in Python, --fs at the command line)")

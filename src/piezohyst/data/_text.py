@@ -304,9 +304,9 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     def without_extra_field(fs_: list[str]) -> list[str]:
         """A header with one field more than the rows: an empty one (a trailing delimiter on the
         header line alone) or LabVIEW's ``Comment`` column, which its rows leave out."""
-        if len(fs_) == n + int(not trailing) and fs_[-1].strip().lower() in ("", "comment"):
-            return fs_[:-1] if not trailing else fs_
-        return fs_
+        if not trailing and len(fs_) == n + 1 and fs_[-1].strip().lower() in ("", "comment"):
+            return fs_[:-1]
+        return fs_  # (with rows that end in a delimiter too, the extra field already lines up)
 
     if before:
         cand = without_extra_field(fields_of(before[-1]))

@@ -68,9 +68,10 @@ _LOOKS_LIKE_UNIT = re.compile(r"^[A-Za-zµμ°%/^.\-·*0-9]{1,5}$")
 _SCALED = re.compile(r"^(?P<num>[x×*]?\s*[-+]?[\d.]+(?:(?:e|E|\s*\^\s*)[-+]?\d+)?)\s*[x×*]?\s*(?P<unit>[A-Za-zµμ]+)$")
 
 
-def scaled_factor(text: str) -> float | None:
-    """The factor to the unit's canonical one of a scaled unit (``0.1 um`` -> 0.1, ``x10 nm`` ->
-    0.01, ``10^-6 m`` -> 1.0), or None when ``text`` is not one."""
+def scaled_unit(text: str) -> tuple[float, str] | None:
+    """A scaled unit's factor to its quantity's canonical unit and the quantity (``0.1 um`` ->
+    (0.1, "length"), ``x10 nm`` -> (0.01, "length"), ``10^-6 m`` -> (1.0, "length")), or None
+    when ``text`` is not one."""
     m = _SCALED.match(text.strip())
     if not m or unit_key(m.group("unit")) not in _UNITS:
         return None
@@ -80,7 +81,8 @@ def scaled_factor(text: str) -> float | None:
         value = float(num)
     except ValueError:
         return None
-    return value * float(_UNITS[unit_key(m.group("unit"))][1])
+    quantity, factor = _UNITS[unit_key(m.group("unit"))]
+    return value * float(factor), quantity
 
 
 def unit_key(token: str) -> str:
@@ -118,7 +120,7 @@ def split_unit(name: str) -> NameUnit:
         m = rx.match(text)
         if m:
             unit = m.group("unit").strip()
-            if is_unit(unit) or _LOOKS_LIKE_UNIT.match(unit) or scaled_factor(unit) is not None:
+            if is_unit(unit) or _LOOKS_LIKE_UNIT.match(unit) or scaled_unit(unit) is not None:
                 # (a scaled unit, "[0.1 um]", was taken for part of the name and the values for
                 # um, 10 times off: found by fuzzing; it is refused with its factor now)
                 return NameUnit(m.group("base").strip(), unit, True)
@@ -247,9 +249,9 @@ def _checked(role: str, column: str, unit: str, how: str, *, explicit: bool) -> 
     if key in _DIMENSIONLESS:
         return Conversion(column, None, canonical, Fraction(1), "assumed")
     known = _UNITS.get(key)
-    scaled = _SCALED.match(unit.strip()) if known is None else None
-    factor = scaled_factor(unit) if scaled else None
-    if scaled and factor is not None and _UNITS[unit_key(scaled.group("unit"))][0] == quantity:
+    scaled = scaled_unit(unit) if known is None else None
+    if scaled is not None and scaled[1] == quantity:
+        factor = scaled[0]
         raise ScaledUnitError(f"the unit {unit!r} of {column!r} ({_ROLE_WORDS[role]}) is a scaled unit, which piezohyst "
                         f"does not read from a name: give its factor to {canonical} (units={{'{role}': {factor:g}}} in "
                         f"Python, --units {role}={factor:g} at the command line)")
