@@ -71,14 +71,6 @@ def grid_size(n: int) -> int:
     return n * (n + 1) // 2 + 2 * n
 
 
-def _is_grid_size(size: int) -> bool:
-    try:
-        levels_of(size)
-    except ValueError:
-        return False
-    return True
-
-
 def levels_of(size: int) -> int:
     """The ``n`` with ``grid_size(n) == size``, or ValueError."""
     n = int(round((math.sqrt(8 * size + 25) - 5) / 2))
@@ -408,16 +400,10 @@ class Preisach:
         triangle's ``n (n + 1) / 2`` weights, before the edge strips joined it under the same
         schema version) loads with empty strips: the same model (its predictions equal to the
         last digit; it was refused: found by a helper loading files of every earlier commit)."""
-        weights = params["weights"]
-        if isinstance(weights, list):
-            size, lv = len(weights), params.get("levels")
-            if isinstance(lv, int) and not isinstance(lv, bool) and lv >= 1:
-                old = size == lv * (lv + 1) // 2 and size != grid_size(lv)
-            else:
-                lv = int(round((math.sqrt(8 * size + 1) - 1) / 2))
-                old = lv >= 1 and size == lv * (lv + 1) // 2 and not _is_grid_size(size)
-            if old:
-                weights = [*weights, *([0.0] * (2 * lv))]
+        weights, lv = params["weights"], params.get("levels")  # (that kind wrote its levels too)
+        if isinstance(weights, list) and isinstance(lv, int) and not isinstance(lv, bool) and lv >= 1 \
+                and len(weights) == lv * (lv + 1) // 2:
+            weights = [*weights, *([0.0] * (2 * lv))]
         m = cls(lo=params["lo"], hi=params["hi"], weights=weights,
                 slope=params.get("slope", 0.0), offset=params.get("offset", 0.0))
         if "levels" in params and params["levels"] != m.n:
