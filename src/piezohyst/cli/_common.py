@@ -466,11 +466,6 @@ def guarded(call: Callable[[], Any], prefix: str) -> Any:
         raise
 
 
-#: The amplifier's range a command table or an exported compensator assumes when neither the
-#: options nor the model file say (V).
-DEFAULT_U_RANGE = (0.0, 100.0)
-
-
 def check_u_options(u_min: float | None, u_max: float | None) -> None:
     """``--u-min`` / ``--u-max`` as given: finite, and the one below the other (a UsageError)."""
     for flag, v in (("--u-min", u_min), ("--u-max", u_max)):
@@ -486,12 +481,12 @@ def amplifier_range(u_min: float | None, u_max: float | None, doc: dict[str, Any
     reaches further (its record's, ``fit.input_range_V``: the amplifier drove the stage there, so a
     stage identified on -100..100 V or 0..150 V is driven there too; a narrower record keeps
     0..100 V, and commands beyond what it identified are warned of, not refused).
-    Returns ``(low, high, where each came from)``."""
-    fit = doc.get("fit") or {}
-    rec = fit.get("input_range_V") if isinstance(fit, dict) else None
-    if not (isinstance(rec, (list, tuple)) and len(rec) == 2
-            and all(isinstance(v, (int, float)) and math.isfinite(v) for v in rec) and rec[0] < rec[1]):
-        rec = DEFAULT_U_RANGE  # no record said (a model saved without its fit): the default alone
+    ``doc`` is a model file as :func:`~piezohyst.modelio.load_model_document` read it (which checked
+    its ``fit`` block). Returns ``(low, high, where each came from)``."""
+    from ..models.base import DEFAULT_U_RANGE  # (here: the command line parses before numpy loads)
+
+    # no record said (a model saved without its fit): the default alone
+    rec = (doc.get("fit") or {}).get("input_range_V") or DEFAULT_U_RANGE
     ends = []
     for given, flag, recorded, default, wider in ((u_min, "--u-min", rec[0], DEFAULT_U_RANGE[0], min),
                                                   (u_max, "--u-max", rec[1], DEFAULT_U_RANGE[1], max)):

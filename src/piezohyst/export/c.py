@@ -179,11 +179,6 @@ def mean_slope(model: Any, dt: float | None, u_range: tuple[float, float]) -> fl
     return g if math.isfinite(g) and g > 0.0 else None
 
 
-#: The command range on which compiled-in gains are checked when none is given (as ``piezohyst
-#: export``'s default amplifier range); a Python call without one skipped the check (fuzzing).
-DEFAULT_CHECK_RANGE = (0.0, 100.0)
-
-
 def _check_feedback_gains(model: Any, dt: float | None, rng: tuple[float, float], kp: float, ki: float,
                           fdt: float) -> None:
     """Refuse compiled-in gains that diverge on any stage the model describes: with the
@@ -233,7 +228,7 @@ def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, flo
         Sample period of the feedback's integral (default ``dt``; needed when ``ki`` is set for a
         rate-independent model).
     """
-    from ..models.base import check_u_range, kind_of
+    from ..models.base import DEFAULT_U_RANGE, check_u_range, kind_of
 
     rng = check_u_range(u_range)
     kind = kind_of(model)
@@ -254,8 +249,8 @@ def generate_c(model: Any, *, dt: float | None = None, u_range: tuple[float, flo
     fdt = fb_dt if fb_dt is not None else dt
     if ki != 0.0 and fdt is None:
         raise ValueError("integral feedback needs the sample period: give fb_dt (or dt)")
-    if kp or ki:  # without a command range, on the command line's default one (0..100 V)
-        _check_feedback_gains(model, dt if model.dynamic else None, rng if rng is not None else DEFAULT_CHECK_RANGE,
+    if kp or ki:  # without a command range, on the default amplifier's (a Python call skipped it: fuzzing)
+        _check_feedback_gains(model, dt if model.dynamic else None, rng if rng is not None else DEFAULT_U_RANGE,
                               float(kp), float(ki), float(fdt) if fdt is not None else 0.0)
     em = CEmitter()
     for reserved in ("ph_last", "ph_have_last", "ph_limit", "ph_fb_kp", "ph_fb_ki", "ph_fb_int", "ph_fb_sat",

@@ -186,6 +186,10 @@ def need_dt(dt: Any, kind: str) -> float:
     return as_scalar("dt", dt, positive=True)
 
 
+#: The amplifier's range (V) where nothing states one: a unipolar 0..100 V piezo amplifier.
+DEFAULT_U_RANGE = (0.0, 100.0)
+
+
 def check_u_range(u_range: Any) -> tuple[float, float] | None:
     """``(low, high)`` volts, finite and ordered, or None."""
     if u_range is None:
