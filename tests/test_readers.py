@@ -972,3 +972,32 @@ def test_a_decimal_comma_that_shows_only_after_the_first_rows(tmp_path):
         ph.load_dataset(p, fs=1000.0)
     ds = ph.load_dataset(p, decimal=",", fs=1000.0)
     assert ds.u[-1] == pytest.approx(0.5 + 299 / 100) and len(ds) == 550
+
+
+def test_excel_serial_dates_in_a_time_column_without_a_unit(tmp_path):
+    """A spreadsheet's date-time column saved as numbers (days since 1899-12-30) was read as
+    seconds: a 1 kHz record became 86.4 MHz, silently, in every model file (found by fuzzing).
+    Refused with the unit to state; in hours or in seconds from a late start it reads as before."""
+    n, dt = 3000, 1e-3
+    k = np.arange(n)
+    u = 50 + 50 * np.sin(2 * np.pi * k * dt)
+
+    def write(name, header, t):
+        p = tmp_path / name
+        np.savetxt(p, np.c_[t, u, 0.2 * u], delimiter=",", header=header, comments="", fmt="%.12f")
+        return p
+
+    days = write("days.csv", "Time,Voltage (V),Displacement (um)", 46354.5 + k * dt / 86400)
+    with pytest.raises(DataError, match=r"days\.csv: the time column 'Time' states no unit and looks like Excel "
+                                        r"serial dates .*46354\.5 is 2026-11-28 12:00:00.* 8\.64e\+07 Hz; in days "
+                                        r"they are 0\.001 s\. State its unit \(units=\{'t': 'day'\}"):
+        ph.load_dataset(days)
+    assert ph.load_dataset(days, units={"t": "day"}).dt == pytest.approx(dt, rel=1e-3)
+    hours = write("hours.csv", "Time [h],Voltage (V),Displacement (um)", 0.5 + k * dt / 3600)
+    assert ph.load_dataset(hours).dt == pytest.approx(dt, rel=1e-6)
+    late = write("late.csv", "Time,Voltage (V),Displacement (um)", 30000.0 + k * 1e-4)  # 10 kHz, 8 h in
+    assert ph.load_dataset(late).dt == pytest.approx(1e-4, rel=1e-6)
+    # an hour stated as a suffix is a name: u_h, Position_h (a horizontal axis) read as before
+    axis = write("axis.csv", "t,u_h,Position_h", k * dt)
+    ds = ph.load_dataset(axis, u_col="u_h", y_col="Position_h")
+    assert ds.meta["units"]["y"]["unit"] is None and ds.dt == pytest.approx(dt)

@@ -219,6 +219,36 @@ def check_units_arg(units: Any, where: str) -> dict[str, Any]:
     return dict(units)
 
 
+#: Excel's serial dates (days since 1899-12-30) from 1954 to 2119
+_EXCEL_SERIAL_DAYS = (20_000.0, 80_000.0)
+#: a step below this, in seconds, is a sample rate above 5 MHz: no piezo record's
+_IMPLAUSIBLE_STEP = 2e-7
+
+
+def _refuse_excel_serial_days(where: str, label: str, how: str, t: np.ndarray) -> None:
+    """Refuse a time column without a unit whose values are Excel serial dates (days).
+
+    A spreadsheet's date-time column saved as numbers reads 46354.5 for 2026-11-28 12:00, and
+    steps of 1.16e-8 for a millisecond: taken as seconds, a record sampled at 86.4 MHz, which
+    every model with dynamics and every model file then carried (found by fuzzing lab files).
+    Refused only where both hold: values in the dates' range and a step no acquisition makes in
+    seconds; the message names the unit to state."""
+    if how != "assumed" or t.size < 2:
+        return
+    mean = float(t[-1] - t[0]) / (t.size - 1)
+    lo, hi = _EXCEL_SERIAL_DAYS
+    if not (lo <= float(t[0]) and float(t[-1]) <= hi and 0.0 < mean < _IMPLAUSIBLE_STEP):
+        return
+    import datetime
+
+    start = datetime.datetime(1899, 12, 30) + datetime.timedelta(days=float(t[0]))
+    raise DataError(
+        f"{where}: the time column {label!r} states no unit and looks like Excel serial dates (days since "
+        f"1899-12-30: {float(t[0]):.10g} is {start:%Y-%m-%d %H:%M:%S}): read as seconds its steps of {mean:.3g} "
+        f"would be a sample rate of {1.0 / mean:.4g} Hz; in days they are {mean * 86400:.6g} s. State its unit "
+        f"(units={{'t': 'day'}} in Python, --units t=day at the command line)")
+
+
 def _time_of_the_same_record(src: Source, ku: Key, ky: Key) -> Key | None:
     """``t_<tag>`` when u and y are ``u_<tag>`` and ``y_<tag>`` (:func:`_guess_in_triples`)."""
     nu, ny = normal_name(src.label(ku)), normal_name(src.label(ky))
@@ -369,6 +399,7 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
                             f"(t = {t[i + 1]:.10g} s) after t = {t[i]:.10g} s")
         if not np.all(np.isfinite(steps)):
             raise DataError(f"{where}: the time column {labels['t']!r} spans more than a float can hold")
+        _refuse_excel_serial_days(where, labels["t"], convs["t"].how, t)
         # uniform if every step is within the tolerance of the mean step (then of the median too);
         # only a record that is not needs the median (a sort) to say how far off it is
         mean = float(t[-1] - t[0]) / (t.size - 1)

@@ -35,6 +35,8 @@ for _names, _q, _f in [
     (("us", "usec", "microsecond", "microseconds"), "time", Fraction(1, 10**6)),
     (("ns", "nanosecond", "nanoseconds"), "time", Fraction(1, 10**9)),
     (("min", "minute", "minutes"), "time", Fraction(60)),
+    (("h", "hr", "hour", "hours"), "time", Fraction(3600)),
+    (("day", "days"), "time", Fraction(86400)),  # Excel's serial dates count days
     (("v", "volt", "volts"), "voltage", Fraction(1)),
     (("mv", "millivolt", "millivolts"), "voltage", Fraction(1, 1000)),
     (("uv", "microvolt", "microvolts"), "voltage", Fraction(1, 10**6)),
@@ -49,6 +51,10 @@ for _names, _q, _f in [
 ]:
     for _n in _names:
         _UNITS[_n] = (_q, _f)
+
+#: units read only where a name states them as units (``Time [h]``, ``t / day``), not as a
+#: suffix: ``u_h`` and ``Position_h`` (a horizontal axis) stay names
+_NOT_AS_SUFFIX = {"h", "hr", "hour", "hours", "day", "days"}
 
 #: written where a unit would be but saying "no unit": taken as the canonical unit (and said so)
 _DIMENSIONLESS = {"", "-", "--", "1", "none", "n/a", "na", "a.u.", "au", "arb", "arb.", "arb. units"}
@@ -130,7 +136,7 @@ def split_unit(name: str) -> NameUnit:
         if m and unit_key(m.group("unit")) in _UNITS:
             return NameUnit(m.group("base").strip(), m.group("unit"), True)
     m = _SUFFIX.match(text)
-    if m and unit_key(m.group("unit")) in _UNITS:
+    if m and unit_key(m.group("unit")) in _UNITS and unit_key(m.group("unit")) not in _NOT_AS_SUFFIX:
         return NameUnit(m.group("base").strip(), m.group("unit"), False)
     return NameUnit(text, None, False)
 
@@ -149,7 +155,7 @@ def normal_name(name: str) -> str:
 
 def describe_units() -> str:
     """The known units, for error messages."""
-    return "s, ms, us, ns, min; V, mV, uV, kV; m, cm, mm, um (µm, micron), nm, pm"
+    return "s, ms, us, ns, min, h, day; V, mV, uV, kV; m, cm, mm, um (µm, micron), nm, pm"
 
 
 @dataclass(frozen=True)
