@@ -1001,3 +1001,37 @@ def test_excel_serial_dates_in_a_time_column_without_a_unit(tmp_path):
     axis = write("axis.csv", "t,u_h,Position_h", k * dt)
     ds = ph.load_dataset(axis, u_col="u_h", y_col="Position_h")
     assert ds.meta["units"]["y"]["unit"] is None and ds.dt == pytest.approx(dt)
+
+
+@pytest.mark.parametrize("late", [False, True])
+def test_thousands_points_with_a_decimal_comma(tmp_path, late):
+    """German Excel writes a cell formatted with thousands as ``1.010,2``: the comma was taken for
+    the delimiter and the table for four columns of text (found by fuzzing lab files). Grouped
+    numbers in the first rows, or only after the rows the sniffer reads (nm passing 1000 late)."""
+    k = np.arange(2000)
+    u = 50 + 50 * np.sin(2 * np.pi * k / 1000)
+    y = 2.0 * k if late else 1000 + 1000 * np.sin(2 * np.pi * k / 1000)
+
+    def de(v):
+        return f"{v:,.3f}".replace(",", "X").replace(".", ",").replace("X", ".")
+
+    p = tmp_path / "de.csv"
+    p.write_text("\n".join(["Zeit [s];Spannung [V];Weg [nm]"]
+                           + [f"{i / 1000:.3f}".replace(".", ",") + f";{de(u[i])};{de(y[i])}" for i in k]) + "\n",
+                 encoding="utf-8")
+    ds = ph.load_dataset(p)
+    assert (ds.meta["delimiter"], ds.meta["decimal"], ds.meta["thousands"]) == ("semicolon", ",", ".")
+    np.testing.assert_allclose(ds.y, np.round(y, 3) / 1000, atol=1e-12)
+    np.testing.assert_allclose(ds.u, np.round(u, 3), atol=1e-12)
+    assert ds.dt == pytest.approx(1e-3)
+
+
+def test_three_decimals_with_a_point_stay_decimals(tmp_path):
+    """A semicolon file with decimal points and three decimals (and a comma in its header) is not
+    read as thousands: 1.250 stays 1.25."""
+    p = tmp_path / "points.csv"
+    p.write_text("t [s];u, drive [V];y [um]\n" + "".join(f"{i / 1000:.3f};{1 + i / 1000:.3f};{2 + i / 500:.3f}\n"
+                                                          for i in range(300)))
+    ds = ph.load_dataset(p, u_col=1, y_col=2)
+    assert ds.meta["decimal"] == "." and "thousands" not in ds.meta
+    assert ds.u[250] == pytest.approx(1.25) and ds.y[250] == pytest.approx(2.5)

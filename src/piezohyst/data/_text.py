@@ -35,8 +35,11 @@ CANDIDATES: list[tuple[str | None, str]] = [
 ]
 _NUM = {
     ".": re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$"),
-    ",": re.compile(r"^[+-]?(?:\d+,?\d*|,\d+)(?:[eE][+-]?\d+)?$"),
+    ",": re.compile(r"^[+-]?(?:\d{1,3}(?:\.\d{3})+(?:,\d*)?|\d+,?\d*|,\d+)(?:[eE][+-]?\d+)?$"),
 }
+#: a number with a decimal comma grouped in thousands by points (``1.010,2``, as German Excel
+#: writes a cell formatted so)
+_GROUPED = re.compile(r"^[+-]?\d{1,3}(?:\.\d{3})+(?:,\d*)?$")
 _SPECIAL = re.compile(r"^[+-]?(?:inf|infinity)$", re.IGNORECASE)
 #: what pandas reads as missing (NaN)
 _NA = {"", "na", "n/a", "nan", "-nan", "+nan", "null", "none", "#n/a", "<na>", "1.#ind", "1.#qnan",
@@ -57,7 +60,8 @@ def _cls(field_text: str, decimal: str) -> str:
     return "x"
 
 
-_NUM_BODY = {".": r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", ",": r"[+-]?(?:\d+,?\d*|,\d+)(?:[eE][+-]?\d+)?"}
+_NUM_BODY = {".": r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?",
+             ",": r"[+-]?(?:\d{1,3}(?:\.\d{3})+(?:,\d*)?|\d+,?\d*|,\d+)(?:[eE][+-]?\d+)?"}
 #: (delimiter, decimal) -> a whole line of numbers only: such a line's classes are all "n" without
 #: splitting it (most lines of a data file; the rest goes field by field through _cls)
 def _all_numbers(delim: str | None, decimal: str) -> re.Pattern[str]:
@@ -116,6 +120,7 @@ class Layout:
     header_mismatch: str | None = None
     units_line: bool = False  # ``units`` came from the line under the header
     text_columns: tuple[int, ...] = ()  # columns whose rows hold text, not numbers (clock times?)
+    thousands: str | None = None  # "." where numbers with a decimal comma are grouped (1.010,2)
 
 
 def detect_encoding(head: bytes) -> tuple[str, int]:
@@ -338,6 +343,11 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
     # not among them)
     preamble = len(before) - (0 if names is None or header_line is None else 2 if units_line else 1)
 
+    # (German thousands points, "1.010,2" in a semicolon file, made the comma the delimiter and
+    # the table four columns of text: found by fuzzing lab files)
+    thousands = "." if dec == "," and delim != "." and any(
+        _GROUPED.match(f.strip().strip('"').strip()) for li in sample[start:] for f in _split(lines[li], delim)) \
+        else None
     rows_text = "\n".join(lines[li] for li in content[start:])
     row_bytes = (len(rows_text.encode(encoding, errors="replace")) + 1) / max(1, len(content) - start)
     offset = bom + len("\n".join(lines[:first_data]).encode(encoding, errors="replace")) + (1 if first_data else 0)
@@ -345,7 +355,8 @@ def sniff(path: Path, head: bytes, size: int, delimiter: str | None = None,
                   names=names, header_line=header_line, units=units, units_line=units_line, offered=offered,
                   text_columns=tuple(j for j, c in enumerate(cols) if c == "x"), preamble=preamble,
                   index_dropped=index_dropped, bytes_per_row=max(2.0, float(row_bytes)),
-                  data_offset=offset, trailing=trailing, saved_meta=saved_meta, header_mismatch=mismatch)
+                  data_offset=offset, trailing=trailing, saved_meta=saved_meta, header_mismatch=mismatch,
+                  thousands=thousands)
 
 
 def _unbracketed(field_text: str) -> str:
@@ -398,6 +409,8 @@ class TextSource:
             "format": "text", "encoding": lay.encoding, "delimiter": _DELIM_NAMES.get(lay.delimiter, lay.delimiter),
             "decimal": lay.decimal,
         }
+        if lay.thousands is not None:
+            self.meta["thousands"] = lay.thousands
         if lay.header_line is not None:
             self.meta["header_line"] = lay.header_line
         if lay.units is not None:
@@ -542,6 +555,8 @@ class TextSource:
             "skiprows": lay.skip, "header": None, "names": [f"c{i}" for i in range(lay.nfields)],
             "index_col": False, "dtype": dtype, "engine": "c", "skip_blank_lines": True,
         }
+        if lay.thousands is not None:
+            kwargs["thousands"] = lay.thousands
         if len(keys) < lay.nfields:
             if _parallel_read_beats_usecols(pd, self.size, len(keys), lay.nfields):
                 try:  # the spare column may hold what is no number: then only the wanted ones
@@ -574,6 +589,8 @@ class TextSource:
             if df is not None:
                 break
         if df is None:
+            if problem is not None and self._late_thousands(keys):
+                return self._parse(keys, text)
             if problem is None:
                 raise DataError(f"{self.where}: cannot decode the file as {lay.encoding} text")
             msg = self._scan(keys)
@@ -582,6 +599,18 @@ class TextSource:
                 msg = f"cannot parse it as a {self.meta['delimiter']}-separated table ({first[:200]})"
             raise DataError(f"{self.where}: {msg}")
         return self._checked(df)
+
+    def _late_thousands(self, keys: list[int]) -> bool:
+        """True (and the layout told) where a decimal-comma file groups thousands by points only
+        in rows after those the sniffer saw (a displacement in nm that passes 1000 late)."""
+        lay = self.lay
+        if lay.decimal != "," or lay.thousands is not None or lay.delimiter == ".":
+            return False
+        for _lineno, fields in self._data_rows():
+            if any(k < len(fields) and _GROUPED.match(fields[k]) for k in keys):
+                lay.thousands = self.meta["thousands"] = "."
+                return True
+        return False
 
     def _checked(self, df: Any) -> Any:
         if len(df) == 0:
