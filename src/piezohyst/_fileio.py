@@ -84,11 +84,31 @@ class OverwriteRefused(OutputError, FileExistsError):
     """The output exists (or appeared while the run worked) and ``force`` was not given."""
 
 
+#: the command line of a ``piezohyst`` run, as the user typed it (set by the command line's
+#: ``main``); None in Python, where the script's own arguments are recorded
+_COMMAND_LINE: list[str] | None = None
+
+
+def set_command_line(words: list[str] | None) -> None:
+    """Record the command line that files written from now on name (``piezohyst rig --out x``)."""
+    global _COMMAND_LINE
+    _COMMAND_LINE = None if words is None else [str(w) for w in words]
+
+
 def producer() -> str:
-    """One line saying what wrote a file: package, version, command line, UTC time."""
+    """One line saying what wrote a file: package, version, command line, UTC time.
+
+    The command line is quoted as a shell would need it (``shlex.join``), so it can be run
+    again; run as ``python -m piezohyst`` it is the ``piezohyst`` command it amounts to (it was
+    ``__main__.py rig --out loops dir``: found by a helper)."""
+    import shlex
+
     from . import __version__
 
-    argv = " ".join(os.path.basename(a) if i == 0 else a for i, a in enumerate(sys.argv))
+    if _COMMAND_LINE is not None:
+        argv = shlex.join(_COMMAND_LINE)
+    else:
+        argv = shlex.join([os.path.basename(a) if i == 0 else a for i, a in enumerate(sys.argv)])
     now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     return f"piezohyst {__version__}; command: {argv}; at {now}"
 

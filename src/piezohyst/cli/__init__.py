@@ -25,6 +25,7 @@ stdout). Exit codes:
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -144,10 +145,22 @@ def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
     return None
 
 
+def _silence_stdout() -> None:
+    """Point stdout at the null device, so the interpreter's last flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # a replaced stdout (a notebook, a test)
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args_in = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args_in
     args_in = [a for a in args_in if a != "--debug"]
+    from .._fileio import set_command_line
+
+    set_command_line(["piezohyst", *args_in])
     # SIGTERM/SIGHUP end the run like Ctrl-C: every finally runs (temporary files are removed)
     handlers = {}
     _signalled.clear()
@@ -182,6 +195,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 seen.add(text)
                 print(f"{prog}: warning: {cli_spelling(text, _flags(parser, command))}", file=sys.stderr)
         return code
+    except BrokenPipeError:
+        # the reader of stdout went away ("| head -1"): nothing to say to it, and the shell's code
+        # for a writer a closed pipe ends (128 + SIGPIPE), as other tools give under pipefail
+        _silence_stdout()
+        return 141
     except KeyboardInterrupt as exc:
         if debug and not isinstance(exc, Terminated):
             raise
@@ -208,6 +226,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               "(the traceback)", file=sys.stderr)
         return 1
     finally:
+        set_command_line(None)
         for sig, old in handlers.items():
             signal.signal(sig, old)
 

@@ -56,8 +56,14 @@ def console(stderr: bool = False) -> Any:
 
     from rich.console import Console
 
+    class _Console(Console):
+        def on_broken_pipe(self) -> None:
+            # rich exits with 1 here, which this tool keeps for its own bugs ("| head -1" ended
+            # with 1 and no word: found by a helper); main() ends the run as a closed pipe does
+            raise BrokenPipeError(32, "the reader of the output closed it")
+
     width = None if sys.stdout.isatty() else max(shutil.get_terminal_size((140, 24)).columns, 140)
-    return Console(stderr=stderr or STDOUT_TAKEN, highlight=False, markup=False, width=width)
+    return _Console(stderr=stderr or STDOUT_TAKEN, highlight=False, markup=False, width=width)
 
 
 #: Arguments that name an input file (``-`` reads it from stdin) and the suffix it is given then.
