@@ -208,7 +208,10 @@ def test_cli_on_a_dask_scheduler_and_worker_started_here(batch, serial, tmp_path
     assert doc["cluster"] == address
     assert [o["record"] for o in doc["statistics"]["outliers"]] == summary[summary["outlier"]]["record"].tolist()
     assert doc["failed_records"][0]["record"] == "corrupt"
-    _check_batch(summary, batch)
+    # the file says what wrote it, in a column (a comment line would be a data row to a spreadsheet)
+    assert summary["written_by"].str.startswith("piezohyst ").all()
+    assert f"command: piezohyst fleet identify {batch['dir']}" in summary["written_by"].iloc[0]
+    _check_batch(summary.drop(columns="written_by"), batch)
     assert len(list((out / "models").glob("*.json"))) == N_ACTUATORS
     assert (out / "fleet_histograms.png").stat().st_size > 0
     for _, row in summary[summary["status"] == "ok"].iterrows():  # the acceptance: ph.fit_pi on the same files
@@ -488,3 +491,31 @@ def test_model_files_of_records_no_longer_in_the_batch_are_named(tmp_path, capsy
     assert main(["fleet", "identify", str(renamed), str(files[1]), "--model", "pi", "--out", str(out),
                  "--workers", "1", "--quiet"]) == 0
     assert f"{files[0].stem}.json" in capsys.readouterr().out
+
+
+def test_files_of_those_names_that_no_batch_wrote_are_not_replaced(tmp_path, capsys):
+    """A user's own summary.csv or fleet_histograms.png in the out folder was replaced without a
+    word (the summary is written with force, so that a rerun resumes; found by a helper): refused
+    before any fit, naming it and the way out; a batch's own summary is replaced by its rerun."""
+    from piezohyst.cli import main
+
+    files = write_simulated_batch(tmp_path / "b", 2, seed=5, fs=200.0, cycles=3)
+    for name, content in (("summary.csv", b"my precious notes\n"), ("fleet_histograms.png", b"keep")):
+        out = tmp_path / f"out-{name}"
+        out.mkdir()
+        (out / name).write_bytes(content)
+        with pytest.raises(FileExistsError, match=rf"{name} exists and is not a file a piezohyst fleet wrote; "
+                                                  r"not replacing it.*force=True"):
+            identify_many(files, client="serial", out=out)
+        assert not (out / "models").exists()  # refused before any fit
+        assert main(["fleet", "identify", str(files[0].parent), "--model", "pi", "--out", str(out), "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "not replacing it" in err and "--force" in err, err
+        assert (out / name).read_bytes() == content
+        assert main(["fleet", "identify", str(files[0].parent), "--model", "pi", "--out", str(out), "--quiet", "--force"]) == 0
+        assert (out / name).read_bytes() != content
+        capsys.readouterr()
+    # a batch's own files: its rerun (resumed) replaces them
+    out = tmp_path / "out-summary.csv"
+    assert main(["fleet", "identify", str(files[0].parent), "--model", "pi", "--out", str(out), "--quiet"]) == 0
+    assert pd.read_csv(out / "summary.csv")["resumed"].all()

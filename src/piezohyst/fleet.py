@@ -51,8 +51,10 @@ Records whose model file is already in ``out/models`` are not fitted again (unle
 their rows are read back from the model files, which carry them. A model file made with other
 options, or from another version of its data file (its SHA-256), is reported as an error row
 rather than silently reused; ``force`` refits it. ``summary.*`` and the histogram describe the
-latest run and are replaced by it (atomically); model files are never overwritten without
-``force``.
+latest run and are replaced by it (atomically), but a file of those names that no batch wrote
+(a user's own ``summary.csv``) is refused before any fit unless ``force``; model files are never
+overwritten without ``force``. The summary files add a column ``written_by`` (package, version,
+command line, time) in place of a comment line, which spreadsheets would read as data.
 
 One numba thread per worker
 ---------------------------
@@ -969,6 +971,7 @@ def identify_many(
     if out_dir is not None:
         if out_dir.exists() and not out_dir.is_dir():
             raise NotADirectoryError(f"{out_dir}: exists and is not a folder (out must be a folder)")
+        check_batch_files(out_dir, force)  # before the fits, not after an hour of them
         models_dir = out_dir / "models"
         inside = out_dir.resolve()
         records = [(n, p) for n, p in records if inside not in p.resolve().parents]  # not our own summary
@@ -1026,7 +1029,7 @@ def identify_many(
     df = pd.DataFrame.from_records([rows[n] for n, _ in records], columns=list(COLUMNS))
     df = batch_statistics(df, threshold=outlier_mads).table
     if out_dir is not None:
-        write_summary(df, out_dir)
+        write_summary(df, out_dir, force=force)
     if models_dir is not None and models_dir.is_dir():
         # model files of records no longer in the batch (renamed, removed) stayed without a word
         # (found by fuzzing): named, not removed (they are the user's results)
@@ -1035,17 +1038,65 @@ def identify_many(
     return df
 
 
-def write_summary(df: Any, out: str | os.PathLike[str]) -> list[Path]:
+#: The files a batch writes in its out folder besides ``models/``, which a later run of the same
+#: batch replaces (the command line writes the histograms)
+BATCH_FILES = ("summary.csv", "summary.parquet", "fleet_histograms.png")
+
+
+def _written_by_a_fleet(path: Path) -> bool:
+    """Whether ``path`` is a file a batch wrote: a summary whose columns start as this module's
+    (of any version), or a PNG whose metadata name piezohyst."""
+    try:
+        if path.suffix == ".csv":
+            with open(path, encoding="utf-8", errors="replace", newline="") as fh:
+                first = fh.readline()
+            return first.split(",")[:3] == list(COLUMNS[:3])
+        if path.suffix == ".parquet":
+            import pyarrow.parquet as pq
+
+            return list(pq.read_schema(path).names[:3]) == list(COLUMNS[:3])
+        if path.suffix == ".png":
+            with open(path, "rb") as fh:
+                head = fh.read(1 << 16)
+            return head.startswith(b"\x89PNG") and b"piezohyst" in head
+    except Exception:  # noqa: BLE001 - unreadable, or not what its name says: not ours
+        return False
+    return False
+
+
+def check_batch_files(out: str | os.PathLike[str], force: bool) -> None:
+    """Refuse (OverwriteRefused) where ``out`` holds a ``summary.csv``, ``summary.parquet`` or
+    ``fleet_histograms.png`` that no batch wrote, unless ``force``: a rerun of a batch replaces
+    its own summary (that is how it resumes), but a user's own file of that name was replaced
+    without a word (found by a helper)."""
+    from ._fileio import OverwriteRefused
+
+    if force:
+        return
+    for name in BATCH_FILES:
+        p = Path(out) / name
+        if os.path.lexists(p) and not _written_by_a_fleet(p):
+            raise OverwriteRefused(
+                f"{p} exists and is not a file a piezohyst fleet wrote; not replacing it: give another out folder, "
+                f"or replace it and refit every record (force=True in Python, --force at the command line)")
+
+
+def write_summary(df: Any, out: str | os.PathLike[str], *, force: bool = False) -> list[Path]:
     """Write ``out/summary.csv`` (and ``summary.parquet`` when pyarrow is installed), atomically,
-    replacing the previous run's. Returns the files written."""
+    replacing a previous batch's; a file of those names that no batch wrote is refused unless
+    ``force`` (:func:`check_batch_files`). Each row's ``written_by`` says what wrote the file
+    (package, version, command line, time: the summary keeps no comment line, so that every
+    spreadsheet and ``pandas.read_csv`` reads it as it is). Returns the files written."""
     import importlib.util
 
-    from ._fileio import atomic_write
+    from ._fileio import atomic_write, producer
 
     out_dir = Path(out)
-    written = [atomic_write(out_dir / "summary.csv", lambda tmp: df.to_csv(tmp, index=False), force=True)]
+    check_batch_files(out_dir, force)
+    table = df.assign(written_by=producer())
+    written = [atomic_write(out_dir / "summary.csv", lambda tmp: table.to_csv(tmp, index=False), force=True)]
     if importlib.util.find_spec("pyarrow") is not None:
-        written.append(atomic_write(out_dir / "summary.parquet", lambda tmp: df.to_parquet(tmp, index=False),
+        written.append(atomic_write(out_dir / "summary.parquet", lambda tmp: table.to_parquet(tmp, index=False),
                                     force=True))
     return written
 
@@ -1275,5 +1326,5 @@ def write_simulated_batch(
 __all__ = [
     "COLUMNS", "DATA_SUFFIXES", "FIGURES", "OUTLIER_MADS", "BatchStatistics", "FitOptions", "MissingExtraError",
     "batch_statistics", "find_records", "fit_record", "identify_many", "identify_record", "local_cluster",
-    "plot_histograms", "write_simulated_batch", "write_summary",
+    "plot_histograms", "write_simulated_batch", "write_summary", "check_batch_files",
 ]
