@@ -519,3 +519,50 @@ def test_files_of_those_names_that_no_batch_wrote_are_not_replaced(tmp_path, cap
     out = tmp_path / "out-summary.csv"
     assert main(["fleet", "identify", str(files[0].parent), "--model", "pi", "--out", str(out), "--quiet"]) == 0
     assert pd.read_csv(out / "summary.csv")["resumed"].all()
+
+
+def test_names_of_any_script_alike_names_and_long_names(tmp_path):
+    """压电1, Ω1 and µ1 all became "_1", and 'act 01', 'act_01', 'Act_01' stayed alike whatever was
+    added: the batch was refused as not unique; a 251-character name was fitted and its model file
+    could not be written (found by a helper). Letters of any script stay, names still alike end
+    in a hash of their path (stable from run to run), long names are cut to 200 bytes."""
+    folder = tmp_path / "lot"
+    folder.mkdir()
+    stems = ["压电1", "Ω1", "µ1", "act 01", "act_01", "Act_01", "x" * 246]
+    for stem in stems:
+        (folder / f"{stem}.csv").write_text("t,u,y\n0,0,0\n1,1,1\n", encoding="utf-8")
+    names = dict((p.stem, n) for n, p in find_records(folder))
+    assert [names[s] for s in ("压电1", "Ω1", "µ1")] == ["压电1", "Ω1", "µ1"]
+    alike = [names[s] for s in ("act 01", "act_01", "Act_01")]
+    assert len({n.casefold() for n in alike}) == 3 and all(n.startswith(("act_01-", "Act_01-")) for n in alike)
+    assert dict((p.stem, n) for n, p in find_records(folder)) == names  # the same on every run
+    long = names["x" * 246]
+    assert len(long.encode()) == 200 and long.startswith("x" * 150)
+
+
+def test_a_model_file_of_another_lots_record_is_not_called_changed(tmp_path):
+    """Two lots with the same file names into one out folder: lot B's rows said lot A's files
+    "changed" and advised force, which replaced lot A's models (found by a helper)."""
+    a = write_simulated_batch(tmp_path / "lotA", 2, seed=1, fs=200.0, cycles=3)
+    write_simulated_batch(tmp_path / "lotB", 2, seed=2, fs=200.0, cycles=3)
+    out = tmp_path / "out"
+    identify_many(tmp_path / "lotA", client="serial", out=out)
+    df = identify_many(tmp_path / "lotB", client="serial", out=out)
+    assert (df["status"] == "error").all()
+    for err in df["error"]:
+        assert "was identified from another file" in err and "lotA" in err and "another out folder" in err, err
+        assert "force" not in err and "changed" not in err
+    assert identify_many(a, client="serial", out=out)["resumed"].all()  # lot A's models untouched
+
+
+def test_the_python_api_caps_a_local_clusters_workers_as_the_command_line_does(tmp_path):
+    """workers=1000 from Python started a process storm (load 53, 1614 leaked semaphores: found
+    by a helper); the command line refused it."""
+    from piezohyst._blas import MAX_WORKERS_PER_CORE, usable_cores
+
+    f = write_simulated_batch(tmp_path, 1, fs=200.0)[0]
+    n = MAX_WORKERS_PER_CORE * usable_cores() + 1
+    with pytest.raises(ValueError, match=rf"workers: {n} workers is more than {MAX_WORKERS_PER_CORE}x"):
+        identify_many(f, workers=n)
+    with pytest.raises(ValueError, match="more than"):
+        local_cluster(n)

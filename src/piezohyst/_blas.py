@@ -32,6 +32,22 @@ def usable_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: A local cluster may have up to this many worker processes per core: a local cluster of
+#: hundreds of processes on a few cores starved itself into CommClosedErrors and hung (found by
+#: fuzzing: 200 and 100000 workers on 2 cores; 1000 from Python, a load of 53 and 1614 leaked
+#: semaphores: found by a helper)
+MAX_WORKERS_PER_CORE = 4
+
+
+def too_many_workers(n: int) -> str | None:
+    """Why ``n`` worker processes are too many for a cluster on this machine, or None."""
+    cores = usable_cores()
+    if n > MAX_WORKERS_PER_CORE * cores:
+        return (f"{n} workers is more than {MAX_WORKERS_PER_CORE}x this machine's {cores} cores: each worker is a "
+                "process of its own; for more, start a cluster (dask-jobqueue, a dask scheduler) and pass its address")
+    return None
+
+
 # (set, get) function names, newest builds first
 _NAMES = (("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
           ("scipy_openblas_set_num_threads", "scipy_openblas_get_num_threads"),

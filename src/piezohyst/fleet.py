@@ -310,8 +310,10 @@ def find_records(paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]
 
     Each path is a file (taken as it is), a folder (its data files, :data:`DATA_SUFFIXES`, not
     recursing: give ``"folder/**/*.csv"`` for that) or a glob pattern. Record names are the
-    file names without suffix, with characters other than letters, digits, ``.``, ``_`` and ``-``
-    replaced by ``_``; two files with the same name get their folders prefixed (``lot1__a001``).
+    file names without suffix, with characters other than letters (of any script), digits, ``.``,
+    ``_`` and ``-`` replaced by ``_``; two files with the same name get their folders prefixed
+    (``lot1__a001``); names still alike (``act 01`` and ``act_01``), or longer than 200 bytes, end
+    in a short hash of the file's path.
 
     Raises
     ------
@@ -371,8 +373,24 @@ def _folder_records(folder: Path) -> list[Path]:
                   and f.suffix.lower() in DATA_SUFFIXES)
 
 
+#: bytes of a record name at most (its model file adds ".json"; file systems allow 255)
+_NAME_BYTES = 200
+
+
 def _safe(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).lstrip("._") or "record"
+    # letters and digits of any script stay (压电1, Ω1 and µ1 all became "_1", and the batch was
+    # refused as not unique: found by a helper)
+    return re.sub(r"[^\w.-]+", "_", text).lstrip("._") or "record"
+
+
+def _tagged(name: str, f: Path) -> str:
+    """``name`` made unique by a short hash of the file's full path (stable from run to run),
+    and cut to :data:`_NAME_BYTES` (a 251-character file name was fitted, then its model file
+    could not be written, on every run: found by a helper)."""
+    tag = "-" + hashlib.sha256(str(f.resolve()).encode("utf-8", "surrogateescape")).hexdigest()[:8]
+    room = _NAME_BYTES - len(tag)
+    cut = name.encode("utf-8", "surrogateescape")[:room].decode("utf-8", "ignore")
+    return cut + tag
 
 
 def _record_names(files: Sequence[Path]) -> list[str]:
@@ -391,17 +409,21 @@ def _record_names(files: Sequence[Path]) -> list[str]:
         depth, suffix = levels[level]
         f = files[i]
         stem = f.stem + ("_" + f.suffix.lstrip(".") if suffix and f.suffix else "")
-        return _safe("__".join([*parts[i][len(parts[i]) - depth:], stem] if depth else [stem]))
+        text = _safe("__".join([*parts[i][len(parts[i]) - depth:], stem] if depth else [stem]))
+        return text if len(text.encode("utf-8", "surrogateescape")) <= _NAME_BYTES else _tagged(text, f)
 
     level = [0] * len(files)
     while True:
         names = [name(i, lv) for i, lv in enumerate(level)]
-        count = Counter(n.lower() for n in names)
-        clash = [i for i, n in enumerate(names) if count[n.lower()] > 1]
+        count = Counter(n.casefold() for n in names)
+        clash = [i for i, n in enumerate(names) if count[n.casefold()] > 1]
         if not clash:
             return names
         if any(level[i] == len(levels) - 1 for i in clash):
-            raise ValueError(f"could not give the records unique names ({names[clash[0]]!r} twice); rename the files")
+            # names that stay alike whatever is added ("act 01", "act_01", "Act_01"): each its
+            # own hash, where the batch was refused
+            names = [_tagged(name(i, 0), files[i]) if i in clash else n for i, n in enumerate(names)]
+            return names
         for i in clash:
             level[i] += 1
 
@@ -575,12 +597,27 @@ def _resumed_row(model_path: Path, record: str, path: Path, opts: FitOptions) ->
     recorded = (doc.get("data") or {}).get("source_sha256")
     now = _file_sha256(path)
     if recorded and now and recorded != now and not _same_samples(path, opts, (doc.get("data") or {}).get("sha256")):
-        row["error"] = f"{path} changed since {model_path} was identified from it (its samples differ){redo}"
+        source = fleet["row"].get("file")
+        if isinstance(source, str) and not _same_path(source, path):
+            # (another lot's actuator-001 in the same out folder was "changed", and the advice,
+            # force, replaced the other lot's model files: found by a helper)
+            row["error"] = (f"{model_path} was identified from another file, {source}, not from {path} (a record "
+                            f"of the same name: another lot?); give this batch another out folder")
+        else:
+            row["error"] = f"{path} changed since {model_path} was identified from it (its samples differ){redo}"
         return row, ""
     for k, v in fleet["row"].items():
         if k in row and k not in ("record", "file", "resumed", "model_file", "outlier", "outlier_reason"):
             row[k] = float("nan") if v is None and isinstance(row[k], float) else v
     return row, ""
+
+
+def _same_path(recorded: str, path: Path) -> bool:
+    """Whether a path a model file records names ``path`` (as given then, or resolved)."""
+    try:
+        return recorded == str(path) or Path(recorded).resolve() == path.resolve()
+    except (OSError, ValueError, RuntimeError):
+        return False
 
 
 def _same_samples(path: Path, opts: FitOptions, samples_sha256: Any) -> bool:
@@ -671,6 +708,14 @@ LOCAL_CLUSTER_CONFIG = {
 }
 
 
+def _check_workers(n: int) -> None:
+    from ._blas import too_many_workers
+
+    why = too_many_workers(int(n))
+    if why is not None:
+        raise ValueError(f"workers: {why.replace('pass its address', 'pass its address as client=')}")
+
+
 def local_cluster(workers: int | None = None, *, dashboard_address: str | None = None) -> Any:
     """A ``distributed.Client`` on a new ``LocalCluster``: ``workers`` processes (default: the
     cores) of one thread each, on the loopback interface, started with ``NUMBA_NUM_THREADS=1``
@@ -688,6 +733,7 @@ def local_cluster(workers: int | None = None, *, dashboard_address: str | None =
     n = CPU_COUNT if workers is None else workers
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    _check_workers(n)
     with dask.config.set(LOCAL_CLUSTER_CONFIG):  # read by the servers as they start; the nannies pass it on
         cluster = distributed.LocalCluster(
             n_workers=int(n), threads_per_worker=1, processes=True, host="127.0.0.1",
@@ -965,6 +1011,10 @@ def identify_many(
     if workers is not None and client is not None:
         raise ValueError("workers sizes the local cluster made when client is None; with a client or a scheduler, "
                          "the cluster has the workers it has")
+    if workers is not None:  # up front, not after the records are read
+        if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+            raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        _check_workers(workers)
     records = find_records(paths)
     out_dir = Path(out) if out is not None else None
     models_dir = None

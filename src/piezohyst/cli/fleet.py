@@ -24,23 +24,12 @@ def _workers(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a number of worker processes, got {text!r}") from None
     if n < 1:
         raise argparse.ArgumentTypeError(f"--workers must be at least 1, got {n}")
-    if n > MAX_WORKERS_PER_CORE * _cores():
-        # a local cluster of hundreds of processes on a few cores starved itself into
-        # CommClosedErrors and hung (found by fuzzing: --workers 200 and 100000 on 2 cores)
-        raise argparse.ArgumentTypeError(
-            f"--workers {n} is more than {MAX_WORKERS_PER_CORE}x this machine's {_cores()} cores: each worker is a "
-            "process of its own; for more, start a cluster (dask-jobqueue, a dask scheduler) and pass --scheduler")
+    from .._blas import too_many_workers
+
+    why = too_many_workers(n)
+    if why is not None:
+        raise argparse.ArgumentTypeError(why.replace('pass its address', 'pass --scheduler'))
     return n
-
-
-#: A local cluster may have up to this many worker processes per core (``--workers``).
-MAX_WORKERS_PER_CORE = 4
-
-
-def _cores() -> int:
-    from .._blas import usable_cores
-
-    return usable_cores()
 
 
 def _mads(text: str) -> float:
