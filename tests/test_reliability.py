@@ -468,6 +468,45 @@ def test_output_folder_that_receives_files_meanwhile_is_not_replaced(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["race"]
 
 
+def test_output_folder_onto_a_mount_point(tmp_path, monkeypatch):
+    """A Docker volume or bind mount as --out: the set was written, then refused with "Device or
+    resource busy" naming the temporary folder, since a mount point cannot be renamed onto (found
+    by a helper; checked by hand with ``unshare -m`` and ``mount --bind``, and a read-only one).
+    Here the folder is told to be one: the set is written inside it and moved in file by file,
+    the manifest last, with the same refusals as elsewhere."""
+    import piezohyst._fileio as fio
+
+    out = tmp_path / "volume"
+    out.mkdir()
+    monkeypatch.setattr(fio, "_mount_points", lambda: {str(out.resolve())})
+
+    def tried_to_rename_the_folder(src, dst):
+        raise OSError(16, "Device or resource busy", str(src))
+
+    with monkeypatch.context() as m:
+        m.setattr(fio.os, "rename", tried_to_rename_the_folder)  # what a mount point answers
+        with OutputFolder(out, ["a.txt", "b.txt"]) as d:
+            assert d.parent == out  # on the volume's own file system
+            (d / "a.txt").write_text("1")
+            (d / "b.txt").write_text("2")
+        assert sorted(p.name for p in out.iterdir()) == ["a.txt", "b.txt", MANIFEST]
+        assert set(json.loads((out / MANIFEST).read_text())["files"]) == {"a.txt", "b.txt"}
+        with pytest.raises(OverwriteRefused):
+            OutputFolder(out, ["a.txt", "b.txt"]).check()
+        with OutputFolder(out, ["a.txt", "b.txt"], force=True) as d:  # the previous set replaced
+            (d / "a.txt").write_text("one")
+        assert sorted(p.name for p in out.iterdir()) == ["a.txt", MANIFEST]
+        assert (out / "a.txt").read_text() == "one"
+        with pytest.raises(RuntimeError):  # interrupted: the previous set stays, no temporary left
+            with OutputFolder(out, ["a.txt"], force=True) as d:
+                (d / "a.txt").write_text("half")
+                raise RuntimeError("interrupted")
+        assert sorted(p.name for p in out.iterdir()) == ["a.txt", MANIFEST] and (out / "a.txt").read_text() == "one"
+        (out / "notes.txt").write_text("precious")
+        with pytest.raises(OutputError, match="notes.txt"):
+            OutputFolder(out, ["a.txt"], force=True).check()
+
+
 def test_output_folder_checks_paths(tmp_path):
     (tmp_path / "f").write_text("x")
     with pytest.raises(OutputError, match="is a file, not a folder"):

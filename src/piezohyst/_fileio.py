@@ -25,6 +25,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import sys
@@ -323,6 +324,22 @@ def _manifest_files(folder: Path) -> set[str]:
         return set()
 
 
+def _mount_points() -> set[str]:
+    """The mount points Linux lists for this process (``/proc/self/mountinfo``; empty elsewhere):
+    a bind mount on the same file system is one that ``os.path.ismount`` does not see."""
+    try:
+        with open("/proc/self/mountinfo", encoding="utf-8", errors="surrogateescape") as fh:
+            lines = fh.read().splitlines()
+    except OSError:
+        return set()
+    out = set()
+    for line in lines:
+        fields = line.split(" ")
+        if len(fields) > 4:  # the fifth field, with spaces and the like written as octal escapes
+            out.add(re.sub(r"\\([0-7]{3})", lambda m: chr(int(m.group(1), 8)), fields[4]))
+    return out
+
+
 class OutputFolder:
     """A set of files written into one folder as a whole (a run's figures, report and results).
 
@@ -371,7 +388,7 @@ class OutputFolder:
         anc = _nearest_existing(p.parent)
         if not anc.is_dir():
             raise OutputError(f"cannot write {p}: {anc} is a file, not a folder")
-        _probe_writable(anc, p)
+        _probe_writable(p if self._is_mount_point() else anc, p)  # (a read-only volume said "busy")
         if p.is_dir():
             entries = sorted(os.listdir(p))
             if entries and not self.force:
@@ -385,12 +402,23 @@ class OutputFolder:
         return p
 
     # -- writing ----------------------------------------------------------------------------
+    def _is_mount_point(self) -> bool:
+        """A folder that is a mount point (a Docker volume, a bind mount) cannot be renamed onto:
+        the set was written, then refused with "Device or resource busy" naming the temporary
+        folder (found by a helper). Its files are then moved into it one by one (each atomically,
+        the manifest last), from a temporary folder inside it (the same file system)."""
+        if not self.path.is_dir():
+            return False
+        return os.path.ismount(self.path) or str(self.path.resolve()) in _mount_points()
+
     def __enter__(self) -> Path:
         self.check()
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        inside = self._is_mount_point()
         try:
             with deferred_signals():  # a signal now would leave the temporary folder unnamed
-                self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.tmp-", dir=self.path.parent))
+                self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.tmp-",
+                                                  dir=self.path if inside else self.path.parent))
         except BaseException:
             if self._tmp is not None:
                 with deferred_signals():
@@ -423,9 +451,32 @@ class OutputFolder:
         _chmod_ordinary(tmp / MANIFEST)
         _chmod_ordinary(tmp, folder=True)
 
+    def _publish_into_mount_point(self, tmp: Path) -> None:
+        p = self.path
+        entries = [n for n in os.listdir(p) if n != tmp.name]
+        if entries and not self.force:
+            raise OverwriteRefused(f"{p} received files while this run worked; not replacing them "
+                                   f"(pass force=True / --force to replace a previous output)")
+        foreign = [n for n in self._foreign(p) if n != tmp.name]
+        if foreign:
+            raise OutputError(f"{p} holds files this command did not write ({_few(foreign)}); not replacing "
+                              f"them even with force: give a new or empty folder")
+        previous = _manifest_files(p)
+        with deferred_signals():
+            new = [f.name for f in tmp.iterdir() if f.name != MANIFEST]
+            for name in new:
+                os.replace(tmp / name, p / name)
+            for name in previous - set(new):  # the previous set's files this one does not have
+                if name and os.path.basename(name) == name and name not in (".", ".."):
+                    _remove(p / name)
+            os.replace(tmp / MANIFEST, p / MANIFEST)
+
     def _publish(self, tmp: Path) -> None:
         self._write_manifest(tmp)
         p = self.path
+        if tmp.parent == p:
+            self._publish_into_mount_point(tmp)
+            return
         appeared = (f"{p} received files while this run worked; not replacing them "
                     f"(pass force=True / --force to replace a previous output)")
         with deferred_signals():
