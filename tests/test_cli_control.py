@@ -180,3 +180,35 @@ def test_stdin_and_stdout_are_named_as_such_in_messages(tmp_path, monkeypatch, c
     assert main(["compensate", "--model", model, "--reference", "-", "-o", "-"]) == 0
     err = capsys.readouterr().err
     assert "to stdout" in err and "stdout.csv" not in err
+
+
+def test_long_runs_show_progress_on_a_terminal_with_or_without_json(tmp_path):
+    """``track`` showed nothing for 12 s, and identify, reproduce and benchmark showed nothing with
+    --json even when standard error was a terminal (found by a helper): the step under way is
+    shown there, transient, and standard output keeps the JSON alone."""
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    pi = tmp_path / "pi.json"
+    ph.save_model(ph.PrandtlIshlinskii(np.linspace(0, 90, 10), np.full(10, 0.02)), pi)
+    controller, terminal = pty.openpty()
+    try:
+        proc = subprocess.run([sys.executable, "-m", "piezohyst", "track", "--model", str(pi), "--freq", "1", "--json"],
+                              stdout=subprocess.PIPE, stderr=terminal, timeout=300, check=False)
+        os.close(terminal)
+        shown = b""
+        while True:
+            try:
+                chunk = os.read(controller, 65536)
+            except OSError:  # the terminal's other end closed: all read
+                break
+            if not chunk:
+                break
+            shown += chunk
+    finally:
+        os.close(controller)
+    assert proc.returncode == 0
+    assert "results" in json.loads(proc.stdout)  # the data alone
+    assert b"tracking 1 Hz" in shown, shown[-300:]

@@ -50,6 +50,13 @@ class ArgumentParser(argparse.ArgumentParser):
 STDOUT_TAKEN = False
 
 
+def progress_wanted(args: argparse.Namespace) -> bool:
+    """Whether a long run shows its progress: on standard error when that is a terminal, with or
+    without --json (which keeps standard output to the data alone); identify, reproduce and
+    benchmark showed none with --json (found by a helper)."""
+    return not getattr(args, "json", False) or sys.stderr.isatty()
+
+
 def console(stderr: bool = False) -> Any:
     """A rich console; tables stay readable when the output is piped or captured."""
     import shutil

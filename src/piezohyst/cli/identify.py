@@ -6,6 +6,7 @@ import argparse
 import math
 from typing import Any
 
+from ._common import progress_wanted
 from ._common import (UsageError, add_data_options, console, guarded, load_cli_dataset, nonnegative_int, positive_int,
                       print_json, sample_range, seed, shown)
 
@@ -142,7 +143,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         vd = load_cli_dataset(vf, args)
         _check_magnitude(vd, vf)
         validation.append((vf, vd, 0))
-    show = not args.json
+    show = progress_wanted(args)
     if args.delay is None:
         args.delay = "auto" if method == "select" else 0
 

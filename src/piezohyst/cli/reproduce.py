@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ._common import progress_wanted
 from ._common import (
     UsageError,
     add_rig_options,
@@ -87,7 +88,7 @@ def _submitter(bg, tmp, fmts):  # type: ignore[no-untyped-def]
 def _run(args, rig, hook):  # type: ignore[no-untyped-def]
     from ..experiments.paper import run_paper_experiment
 
-    if args.json:
+    if not progress_wanted(args):
         return run_paper_experiment(rig, seed=args.seed, on_paper_part=hook)
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 

@@ -5,11 +5,12 @@ paper's figures of merit and, with ``-o``, write the runs."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
-from typing import Any
+from typing import Any, Callable, Iterator
 
 from ._common import (UsageError, add_rig_options, check_sinusoids, console, finite_float, freqs, nonnegative_float,
-                      positive_float, positive_int, print_json, rig_from_args, rig_rate_note, shown)
+                      positive_float, positive_int, print_json, progress_wanted, rig_from_args, rig_rate_note, shown)
 from .compensate import compensator_for
 
 
@@ -143,15 +144,17 @@ def cmd_track(args: argparse.Namespace) -> int:
     if args.method == "best":
         from ..commissioning import commission
 
-        ctl = commission(rig, seed=args.seed)
-        rows = []
-        for label, ref, period in refs:
-            try:
-                out = ctl.track(ref, period=period)
-            except UnstableLoopError as exc:
-                raise _unstable(exc, args, label, "the commissioned controller") from None
-            runs.append((label, out))
-            rows.append({"run": label, "freq_hz": _freq(label), "method": "best", **out.summary()})
+        with _spinner(args) as step:
+            ctl = commission(rig, seed=args.seed, progress=lambda s: step(f"commissioning: {s}"))
+            rows = []
+            for label, ref, period in refs:
+                step(f"tracking {label}")
+                try:
+                    out = ctl.track(ref, period=period)
+                except UnstableLoopError as exc:
+                    raise _unstable(exc, args, label, "the commissioned controller") from None
+                runs.append((label, out))
+                rows.append({"run": label, "freq_hz": _freq(label), "method": "best", **out.summary()})
         written = _write_runs(args.output, runs, args) if args.output else None
         return _print_track(args, rows, rig, extra={"controller": ctl.describe(), "written": written})
     model = load_model(args.model)
@@ -159,19 +162,37 @@ def cmd_track(args: argparse.Namespace) -> int:
         ff = compensator_for(model, rig.dt, on_rig=True)
     except (ValueError, TypeError) as exc:
         raise UsageError(f"{args.model}: no compensator from this model: {exc}") from None
-    rows = []
-    for label, ref, period in refs:
-        pid = PID(args.kp, args.ki, args.kd, rig.dt) if args.feedback == "pid" else None
-        try:
-            out = track(rig, ref, ff, pid, period=period)
-        except UnstableLoopError as exc:
-            what = f"PID {_gains(args)}" if pid is not None else f"the feedforward of {args.model} alone"
-            raise _unstable(exc, args, label, what) from None
-        runs.append((label, out))
-        rows.append({"run": label, "freq_hz": _freq(label), "method": f"{type(ff).__name__}" + (" + PID" if pid else ""),
-                     **out.summary()})
+    with _spinner(args) as step:
+        rows = []
+        for label, ref, period in refs:
+            step(f"tracking {label}")
+            pid = PID(args.kp, args.ki, args.kd, rig.dt) if args.feedback == "pid" else None
+            try:
+                out = track(rig, ref, ff, pid, period=period)
+            except UnstableLoopError as exc:
+                what = f"PID {_gains(args)}" if pid is not None else f"the feedforward of {args.model} alone"
+                raise _unstable(exc, args, label, what) from None
+            runs.append((label, out))
+            rows.append({"run": label, "freq_hz": _freq(label), "method": f"{type(ff).__name__}" + (" + PID" if pid else ""),
+                         **out.summary()})
     written = _write_runs(args.output, runs, args) if args.output else None
     return _print_track(args, rows, rig, extra={"written": written})
+
+
+@contextlib.contextmanager
+def _spinner(args: argparse.Namespace) -> Iterator[Callable[[str], None]]:
+    """A transient spinner on standard error naming the step under way (a 12 s run showed
+    nothing: found by a helper); ``step(text)`` names the next one. Silent where
+    :func:`progress_wanted` says so."""
+    if not progress_wanted(args):
+        yield lambda text: None
+        return
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                  console=console(stderr=True), transient=True) as bar:
+        task = bar.add_task("starting", total=None)
+        yield lambda text: bar.update(task, description=text)
 
 
 def _freq(label: str) -> float | None:
