@@ -28,6 +28,19 @@ def test_identify_real_data_writes_a_model_that_loads_back(tmp_path, capsys):
     assert "--force" in capsys.readouterr().err
 
 
+def test_identify_states_the_units_of_its_figures(capsys):
+    """The table said "units of y" and "output units", and the JSON stated no unit for its RMSEs
+    (found by a helper): the data are read into µm, and both say so."""
+    args = ["identify", DBO, "--u-col", "0", "--y-col", "4", "--fs", "200", "--model", "pi", "--method", "lsq"]
+    assert main(args + ["--json"]) == 0
+    units = json.loads(capsys.readouterr().out)["units"]
+    assert units["y"] == units["rmse"] == units["max_abs_error"] == units["sensor_noise_rms"] == "um"
+    assert main(args) == 0
+    table = capsys.readouterr().out
+    assert "units of y" not in table and "output units" not in table
+    assert "weights w_i in µm/V" in table and " µm (" in table.split("fit RMSE", 1)[1].splitlines()[0]
+
+
 def test_validating_on_the_records_end_trains_on_the_rest_only(capsys):
     # without --train the fit took every sample, the validated ones too, and called their error
     # held out (0.339 against 0.402 fitted on 0:6000 alone; found by fuzzing)

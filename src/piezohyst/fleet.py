@@ -1094,7 +1094,8 @@ def identify_many(
     models_dir = None
     if out_dir is not None:
         if out_dir.exists() and not out_dir.is_dir():
-            raise NotADirectoryError(f"{out_dir}: exists and is not a folder (out must be a folder)")
+            raise NotADirectoryError(f"{out_dir}: exists and is not a folder: a batch writes into a folder (out= in "
+                                     f"Python, --out at the command line)")
         check_batch_files(out_dir, force)  # before the fits, not after an hour of them
         models_dir = out_dir / "models"
         inside = out_dir.resolve()

@@ -183,6 +183,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         command = args.command
         prog = f"piezohyst {command}"
+        if getattr(args, "fleet_command", None):  # "piezohyst fleet identify", as its usage errors say
+            prog = f"{prog} {args.fleet_command}"
         if debug:
             return run_with_std_streams(args, args.func)
         with warnings.catch_warnings(record=True) as caught:
