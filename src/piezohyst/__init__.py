@@ -28,6 +28,7 @@ from ._version import __version__ as __version__  # re-exported
 _LAZY: dict[str, str] = {
     "LoopFigures": "analysis", "loop_figures": "analysis",
     "CommissionedController": "commissioning", "commission": "commissioning",
+    "commissioning_excitation": "commissioning",
     "AmplifierSlewWarning": "commissioning",
     "NotMonotoneWarning": "identify.monotone", "DeadRangeWarning": "identify.monotone",
     "BoucWenFeedforward": "control", "InversePIFeedforward": "control", "PID": "control",
