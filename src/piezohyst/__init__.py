@@ -94,7 +94,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from . import control, data, experiments, export, fleet, identify, modelio, models, plots, signals  # noqa: F401
     from .analysis import LoopFigures, loop_figures  # noqa: F401
     from . import commissioning  # noqa: F401
-    from .commissioning import AmplifierSlewWarning, CommissionedController, commission  # noqa: F401
+    from .commissioning import AmplifierSlewWarning, CommissionedController, commission, commissioning_excitation  # noqa: F401
     from .identify.monotone import DeadRangeWarning, NotMonotoneWarning  # noqa: F401
     from .control import (BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult,  # noqa: F401
                           UnstableLoopError, track)
