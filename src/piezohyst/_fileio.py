@@ -85,17 +85,6 @@ class OverwriteRefused(OutputError, FileExistsError):
     """The output exists (or appeared while the run worked) and ``force`` was not given."""
 
 
-#: the command line of a ``piezohyst`` run, as the user typed it (set by the command line's
-#: ``main``); None in Python, where the script's own arguments are recorded
-_COMMAND_LINE: list[str] | None = None
-
-
-def set_command_line(words: list[str] | None) -> None:
-    """Record the command line that files written from now on name (``piezohyst rig --out x``)."""
-    global _COMMAND_LINE
-    _COMMAND_LINE = None if words is None else [str(w) for w in words]
-
-
 def producer() -> str:
     """One line saying what wrote a file: package, version, command line, UTC time.
 
@@ -106,8 +95,10 @@ def producer() -> str:
 
     from . import __version__
 
-    if _COMMAND_LINE is not None:
-        argv = shlex.join(_COMMAND_LINE)
+    from ._provenance import command_line
+
+    if command_line is not None:
+        argv = shlex.join(command_line)
     else:
         argv = shlex.join([os.path.basename(a) if i == 0 else a for i, a in enumerate(sys.argv)])
     now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")

@@ -158,7 +158,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_in = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args_in
     args_in = [a for a in args_in if a != "--debug"]
-    from .._fileio import set_command_line
+    from .._provenance import set_command_line
 
     set_command_line(["piezohyst", *args_in])
     # SIGTERM/SIGHUP end the run like Ctrl-C: every finally runs (temporary files are removed)
