@@ -643,3 +643,16 @@ def test_losing_the_scheduler_mid_batch_is_an_error_not_failed_records(tmp_path)
         left = _stop(procs)
     assert not left
     assert 1 <= len(list((tmp_path / "out" / "models").glob("*.json"))) < 8
+
+
+def test_options_that_read_the_same_samples_resume(tmp_path):
+    """--u-col naming the column found without it, or --delimiter , for a comma file, were "other
+    options" and the whole batch was refused until --force (found by a helper); options that read
+    other samples still are."""
+    files = write_simulated_batch(tmp_path / "b", 2, seed=8, fs=200.0, cycles=3)
+    out = tmp_path / "out"
+    identify_many(files, client="serial", out=out)
+    again = identify_many(files, client="serial", out=out, u_col="u_V", y_col="y_um", delimiter=",")
+    assert again["resumed"].all() and (again["status"] == "ok").all()
+    with pytest.raises(ValueError, match=r"other options .*u_col None there, 'y_um' now"):
+        identify_many(files, client="serial", out=out, u_col="y_um", y_col="u_V")

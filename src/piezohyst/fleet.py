@@ -558,15 +558,21 @@ def _effective_options(d: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _option_changes(before: Any, now: FitOptions) -> str:
+def _option_changes(before: Any, now: FitOptions, path: Path | None = None, samples_sha256: Any = None) -> str:
     """What differs between the options a model file records and this run's, as they act on the
-    fit (:func:`_effective_options`; "" if nothing)."""
+    fit (:func:`_effective_options`; "" if nothing). Options that say how to read the file
+    (``u_col``, ``delimiter``, ...) count only where they read other samples from ``path`` than
+    the model was fitted on (their SHA-256): ``--u-col u_V`` naming the column found without it,
+    or ``--delimiter ,`` for a comma file, refused the whole batch (found by a helper)."""
     if not isinstance(before, dict):
         return "no options recorded"
     now_d = _effective_options(json.loads(json.dumps(now.to_dict())))
     then = _effective_options(before)
-    diff = [f"{k} {then.get(k)!r} there, {v!r} now" for k, v in now_d.items() if then.get(k) != v]
-    return "; ".join(diff)
+    keys = [k for k, v in now_d.items() if then.get(k) != v]
+    reading = set(now.data_options())
+    if keys and all(k in reading for k in keys) and path is not None and _same_samples(path, now, samples_sha256):
+        return ""
+    return "; ".join(f"{k} {then.get(k)!r} there, {now_d[k]!r} now" for k in keys)
 
 
 def _resumed_row(model_path: Path, record: str, path: Path, opts: FitOptions) -> tuple[dict[str, Any], str]:
@@ -590,7 +596,7 @@ def _resumed_row(model_path: Path, record: str, path: Path, opts: FitOptions) ->
     if not isinstance(fleet, dict) or not isinstance(fleet.get("row"), dict):
         row["error"] = f"{model_path} exists but was not written by piezohyst fleet{redo}"
         return row, ""
-    changes = _option_changes(fleet.get("options"), opts)
+    changes = _option_changes(fleet.get("options"), opts, path, (doc.get("data") or {}).get("sha256"))
     if changes:
         row["error"] = f"{model_path} was identified with other options ({changes}){redo}"
         return row, changes
