@@ -656,3 +656,14 @@ def test_options_that_read_the_same_samples_resume(tmp_path):
     assert again["resumed"].all() and (again["status"] == "ok").all()
     with pytest.raises(ValueError, match=r"other options .*u_col None there, 'y_um' now"):
         identify_many(files, client="serial", out=out, u_col="y_um", y_col="u_V")
+
+
+def test_a_batch_logged_to_a_file_gets_progress_lines(tmp_path, capsys):
+    """Outside a terminal (nohup, SLURM, CI) a batch printed no progress until the end, then one
+    line cut at 80 columns (found by a helper): a line for each tenth of the batch."""
+    files = write_simulated_batch(tmp_path / "b", 10, seed=9, fs=200.0, cycles=3)
+    identify_many(files, client="serial", progress=True)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[0].endswith("identifying 10 records on this process (serial)"), lines
+    assert [ln.split("] ", 1)[1].split(" (")[0] for ln in lines[1:]] == [f"{k}/10 records" for k in range(1, 11)]
+    assert "10/10 records (0 failed)" in lines[-1] and "left" not in lines[-1]

@@ -649,8 +649,22 @@ def _write_model(doc: dict[str, Any], path: Path, force: bool) -> Path:
     return atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False) + "\n", force=force)
 
 
+#: Seconds between a batch's progress lines at most, where standard error is not a terminal.
+LOG_EVERY_S = 30.0
+
+
+def _stderr_is_a_terminal() -> bool:
+    import sys
+
+    try:
+        return bool(sys.stderr.isatty())
+    except (AttributeError, ValueError):  # closed or replaced
+        return False
+
+
 class _Progress:
-    """A rich progress bar on stderr (or a user's callback, or nothing)."""
+    """A rich progress bar on stderr where it is a terminal, plain lines where it is not (a log),
+    or a user's callback, or nothing."""
 
     def __init__(self, progress: Any, total: int, where: str) -> None:
         self.callback = progress if callable(progress) else None
@@ -658,7 +672,15 @@ class _Progress:
         self.done = 0
         self.total = total
         self.failed = 0
-        if progress is True:
+        self.lines = progress is True and not _stderr_is_a_terminal()
+        self.where = where
+        self.started = self.last_line = time.monotonic()
+        if self.lines:
+            # a batch's log (nohup, SLURM, CI) got no progress until the end, then one line cut at
+            # 80 columns (found by a helper): plain lines instead, each tenth of the batch and
+            # at least every LOG_EVERY_S
+            pass
+        elif progress is True:
             from rich.console import Console
             from rich.progress import (
                 BarColumn,
@@ -677,17 +699,34 @@ class _Progress:
     def __enter__(self) -> _Progress:  # noqa: PYI034
         if self.bar is not None:
             self.bar.start()
+        if self.lines:
+            self._line(f"identifying {self.total} record{'s' if self.total != 1 else ''} on {self.where}")
         return self
 
     def __exit__(self, *exc: object) -> None:
         if self.bar is not None:
             self.bar.stop()
 
+    def _line(self, text: str) -> None:
+        import sys
+
+        stamp = time.strftime("%H:%M:%S")
+        print(f"[{stamp}] {text}", file=sys.stderr, flush=True)
+        self.last_line = time.monotonic()
+
     def advance(self, row: dict[str, Any]) -> None:
         self.done += 1
         self.failed += row["status"] != "ok"
         if self.bar is not None:
             self.bar.update(self.task, advance=1, failed=self.failed)
+        if self.lines:
+            now = time.monotonic()
+            tenth = max(1, self.total // 10)
+            if self.done == self.total or self.done % tenth == 0 or now - self.last_line >= LOG_EVERY_S:
+                spent = now - self.started
+                left = spent / self.done * (self.total - self.done)
+                self._line(f"{self.done}/{self.total} records ({self.failed} failed), {spent:.0f} s"
+                           + (f", about {left:.0f} s left" if self.done < self.total else ""))
         if self.callback is not None:
             self.callback(self.done, self.total, row)
 
