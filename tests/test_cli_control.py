@@ -212,3 +212,17 @@ def test_long_runs_show_progress_on_a_terminal_with_or_without_json(tmp_path):
     assert proc.returncode == 0
     assert "results" in json.loads(proc.stdout)  # the data alone
     assert b"tracking 1 Hz" in shown, shown[-300:]
+
+
+def test_an_error_into_a_log_is_its_one_line(tmp_path):
+    """Into a file or a pipe a spinner printed a blank line before the error (``benchmark
+    bouc-wen --data`` a CSV: found by a helper): progress is for terminals only."""
+    import subprocess
+    import sys
+
+    bad = tmp_path / "x.csv"
+    bad.write_text("t,u,y\n0,0,0\n1,1,1\n", encoding="utf-8")
+    proc = subprocess.run([sys.executable, "-m", "piezohyst", "benchmark", "bouc-wen", "--data", str(bad)],
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.startswith("piezohyst benchmark: error: ") and proc.stderr.count("\n") == 1, repr(proc.stderr)

@@ -53,8 +53,12 @@ STDOUT_TAKEN = False
 def progress_wanted(args: argparse.Namespace) -> bool:
     """Whether a long run shows its progress: on standard error when that is a terminal, with or
     without --json (which keeps standard output to the data alone); identify, reproduce and
-    benchmark showed none with --json (found by a helper)."""
-    return not getattr(args, "json", False) or sys.stderr.isatty()
+    benchmark showed none with --json (found by a helper). Not into a file or a pipe, where a
+    spinner left a blank line before an error message (found by the same helper)."""
+    try:
+        return bool(sys.stderr.isatty())
+    except (AttributeError, ValueError):  # closed or replaced
+        return False
 
 
 def console(stderr: bool = False) -> Any:
