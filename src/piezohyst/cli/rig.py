@@ -73,7 +73,10 @@ def cmd_rig(args: argparse.Namespace) -> int:
                 np.savetxt(fh, np.column_stack(cols), delimiter=",", fmt="%.9g")
 
         with folder as tmp_dir:  # both files appear together, or neither
-            plots.save_formats(lines[0].axes, tmp_dir / RIG_FILES[0], fmts, force=True)
+            plots.save_formats(lines[0].axes, tmp_dir / RIG_FILES[0], fmts, force=True,
+                               note=f"piezohyst rig: open-loop loops of the virtual rig at "
+                                    f"{', '.join(f'{f:g}' for f, _ in columns)} Hz, {args.u_low:g}-{args.u_high:g} V "
+                                    f"(cf. the paper's Fig. 2); displacement in um against voltage in V")
             atomic_write(tmp_dir / RIG_FILES[1], write, force=True)
         csv_path = out / RIG_FILES[1]
     result = {"rig": rig.settings.to_dict(), "seed": args.seed, "loops": rows,
