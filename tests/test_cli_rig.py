@@ -39,7 +39,8 @@ def test_rig_figure_formats(tmp_path, capsys):
     # who wrote it: found by a helper)
     from PIL import Image
 
-    assert "open-loop loops of the virtual rig at 1 Hz" in Image.open(out / "fig2_loops.png").info["Description"]
+    with Image.open(out / "fig2_loops.png") as png:
+        assert "open-loop loops of the virtual rig at 1 Hz" in png.info["Description"]
     assert "open-loop loops of the virtual rig" in (out / "fig2_loops.svg").read_text(encoding="utf-8")
     capsys.readouterr()
     with pytest.raises(SystemExit) as stop:
