@@ -174,26 +174,33 @@ def _stop(procs):
     return [c.pid for c in alive]
 
 
-def test_cli_on_a_dask_scheduler_and_worker_started_here(batch, serial, tmp_path, capsys):
+def _scheduler_and_worker(tmp_path, procs):
+    """Start a ``dask scheduler`` and one ``dask worker`` on 127.0.0.1 (appended to ``procs``, the
+    scheduler first, for :func:`_stop`), wait (bounded) until the worker is there; the address."""
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = {**os.environ, "NUMBA_NUM_THREADS": "1",
            "PYTHONPATH": os.pathsep.join([os.path.join(ROOT, "src"), os.environ.get("PYTHONPATH", "")])}
+    with open(tmp_path / "dask.log", "wb") as log:  # the children keep their own copy of it
+        procs.append(subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1",
+                                       "--port", str(port), "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
+                                       "--idle-timeout", "300"],
+                                      env=env, stdout=log, stderr=subprocess.STDOUT))
+        procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--host", "127.0.0.1",
+                                       "--nthreads", "1", "--nworkers", "1", "--no-dashboard",
+                                       "--death-timeout", "60"],
+                                      env=env, stdout=log, stderr=subprocess.STDOUT))
+    from distributed import Client
+
+    with Client(address, timeout=60) as c:  # bounded wait for the pair to come up
+        c.wait_for_workers(1, timeout=120)
+    return address
+
+
+def test_cli_on_a_dask_scheduler_and_worker_started_here(batch, serial, tmp_path, capsys):
     procs = []
     try:
-        with open(tmp_path / "dask.log", "wb") as log:  # the children keep their own copy of it
-            procs.append(subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1",
-                                           "--port", str(port), "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
-                                           "--idle-timeout", "300"],
-                                          env=env, stdout=log, stderr=subprocess.STDOUT))
-            procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--host", "127.0.0.1",
-                                           "--nthreads", "1", "--nworkers", "1", "--no-dashboard",
-                                           "--death-timeout", "60"],
-                                          env=env, stdout=log, stderr=subprocess.STDOUT))
-        from distributed import Client
-
-        with Client(address, timeout=60) as c:  # bounded wait for the pair to come up
-            c.wait_for_workers(1, timeout=120)
+        address = _scheduler_and_worker(tmp_path, procs)
         out = tmp_path / "out"
         code = main(["fleet", "identify", str(batch["dir"]), "--model", "pi", "--scheduler", address,
                      "--out", str(out), "--json"])
@@ -613,23 +620,9 @@ def test_losing_the_scheduler_mid_batch_is_an_error_not_failed_records(tmp_path)
     by a helper). Now an error naming how far it got and that a rerun resumes; the records done
     keep their model files. (A scheduler and a worker on 127.0.0.1, killed and stopped here.)"""
     files = write_simulated_batch(tmp_path / "b", 8, seed=7, fs=500.0, cycles=3)
-    port = _free_port()
-    address = f"tcp://127.0.0.1:{port}"
-    env = {**os.environ, "NUMBA_NUM_THREADS": "1",
-           "PYTHONPATH": os.pathsep.join([os.path.join(ROOT, "src"), os.environ.get("PYTHONPATH", "")])}
     procs = []
     try:
-        with open(tmp_path / "dask.log", "wb") as log:
-            procs.append(subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1",
-                                           "--port", str(port), "--no-dashboard", "--idle-timeout", "120"],
-                                          env=env, stdout=log, stderr=subprocess.STDOUT))
-            procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--host", "127.0.0.1",
-                                           "--nthreads", "1", "--no-dashboard", "--death-timeout", "20"],
-                                          env=env, stdout=log, stderr=subprocess.STDOUT))
-        from distributed import Client
-
-        with Client(address, timeout=60) as c:
-            c.wait_for_workers(1, timeout=120)
+        address = _scheduler_and_worker(tmp_path, procs)
 
         def kill_the_scheduler_after_the_first(done, total, row):
             if done == 1:
