@@ -271,3 +271,19 @@ def test_an_invertible_bouc_wen_loop_rises_on_every_branch_and_one_that_falls_is
     assert paper.is_invertible and paper.steepest_hysteresis_slope == pytest.approx(0.944)
     fuzzed = ph.BoucWen(m=0.0018, b=14000, k=8.16e6, d1=2.66e-8, alpha=0.95, beta=0.07, gamma=-0.02)
     assert not fuzzed.is_invertible and _falling_steps(fuzzed) > 0
+
+
+def test_a_fit_whose_loop_is_not_invertible_says_so():
+    """fit_bouc_wen on a second of the commissioning excitation (small loops) returned a loop that
+    falls after reversals (alpha max(1, 2 beta / (beta + gamma)) = 1.08) with no warning, and its
+    compensator was then refused (found by a helper); on full-range loops none is said."""
+    rig = ph.VirtualRig(seed=0)
+    ds = rig.excite(ph.commissioning_excitation(rig.dt, u_range=(0, 100))[:10000])
+    fit = ph.fit_bouc_wen(ds)
+    assert not fit.model.is_invertible
+    assert any("not invertible" in w and "compensator is refused" in w for w in fit.warnings), fit.warnings
+    with pytest.raises(ValueError, match="not monotone"):
+        fit.model.compensator(rig.dt)
+    full = rig.excite(ph.sinusoid(1.0, 2, 0.0, 100.0, rig.dt))
+    good = ph.fit_bouc_wen(full)
+    assert good.model.is_invertible and not any("not invertible" in w for w in good.warnings)

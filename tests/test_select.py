@@ -696,3 +696,15 @@ def test_the_command_line_fits_the_start_and_the_file_keeps_it(tmp_path, capsys)
     # the compensator starts where the history left the model: it inverts the model's own output
     y = model.predict(u, DT)
     assert np.abs(model.predict(model.compensator(DT).command(y), DT) - y).max() < 1e-6 * np.ptp(y)
+
+
+def test_fit_model_takes_progress_true_and_refuses_what_is_not_a_callback():
+    """progress=True failed deep in the search ("'bool' object is not callable"), as fit_pi and
+    fit_bouc_wen take it (found by a helper); a string is refused up front, naming the argument."""
+    rig = ph.VirtualRig(seed=0)
+    ds = rig.excite(ph.sinusoid(1.0, 3, 0.0, 100.0, rig.dt))
+    quiet = ph.fit_model(ds, kind="preisach")
+    shown = ph.fit_model(ds, kind="preisach", progress=True)
+    assert shown.model == quiet.model
+    with pytest.raises(TypeError, match="progress must be True, False, None or a function of one str, got str"):
+        ph.fit_model(ds, kind="preisach", progress="yes")

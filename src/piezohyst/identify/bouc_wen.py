@@ -157,11 +157,18 @@ def fit_bouc_wen(
     model = BoucWen(**params, offset=offset)
     sens = _bw_sensitivity(theta, rmse, nat_lo, nat_hi, us, y_m, dt, foh, fit_offset)
     info["polished_rmse"] = rmse if polish else None
+    said = []
+    if not model.is_invertible:
+        # (returned without a word, then refused by model.compensator(): found by a helper)
+        said.append(f"the identified Bouc-Wen loop is not invertible (alpha max(1, 2 beta / (beta + gamma)) = "
+                    f"{model.steepest_hysteresis_slope:.4g} >= 1: its output falls along part of a branch after a "
+                    f"reversal), so eq. (10) has no unique command: its compensator is refused; identify on a "
+                    f"record with full-range loops, or use another model kind (fit_model)")
     return FitResult(model=model, rmse=rmse, method=method, n_samples=int(us.size),
                      time_s=time.perf_counter() - t0, nit=int(res.nit), nfev=nfev,
                      history=res.history, message=res.message, delay=int(delay),
                      sensitivity=sens, info=info, input_range=(float(us.min()), float(us.max())),
-                     largest_loop=2.0 * largest_loop_threshold(us))
+                     largest_loop=2.0 * largest_loop_threshold(us), warnings=said)
 
 
 def _polish_bouc_wen(x0: FloatArray, lo: FloatArray, hi: FloatArray, u: FloatArray, y_m: FloatArray,

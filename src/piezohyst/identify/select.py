@@ -433,7 +433,7 @@ def fit_model(
     taus: Sequence[float] | None = None, input_taus: Sequence[float] | None = None,
     max_delay: int | None = None, statics: Sequence[str] = ("pi", "preisach", "bouc-wen", "duhem"),
     seed: Any = 0, bouc_wen_options: dict[str, Any] | None = None,
-    progress: Callable[[str], None] | None = None, warmup: int = 0, glitches: str = "bridge",
+    progress: Callable[[str], None] | bool | None = None, warmup: int = 0, glitches: str = "bridge",
     history: str | None = None,
 ) -> FitResult:
     """Identify the model that predicts held-out data best (module docstring).
@@ -472,8 +472,9 @@ def fit_model(
         The static parts the linear kinds may use.
     seed, bouc_wen_options
         For the Bouc-Wen candidate (PSO).
-    progress : callable, optional
-        Called with a short description before each stage.
+    progress : callable or bool, optional
+        Called with a short description before each stage; True shows a
+        :class:`~piezohyst.Progress` display (in a notebook, or on a terminal's standard error).
     warmup : int
         Samples at the record's start that only set the model's state: the candidates' operators
         and lags run through them, but they are neither fitted nor scored (a conditioning sweep
@@ -554,7 +555,17 @@ def fit_model(
             "rising loop. A sensor that reads the other way round: negate y first; a stage whose loop falls "
             "after each reversal for longer than these swings: excite a wider range" + butterfly)
     dt = as_scalar("dt", dt, positive=True) if dt is not None else None
-    say = progress or (lambda s: None)
+    if progress is True:  # (it failed deep in the search, "'bool' object is not callable": found by a helper)
+        from ..progress import Progress
+
+        with Progress("identifying") as shown:
+            return fit_model(u, y, dt, kind, validation=validation, holdout=holdout, delay=delay, n=n, kinds=kinds,
+                             margin=margin, taus=taus, input_taus=input_taus, max_delay=max_delay, statics=statics,
+                             seed=seed, bouc_wen_options=bouc_wen_options, progress=shown, warmup=warmup,
+                             glitches=glitches, history=history)
+    if not (progress is None or progress is False or callable(progress)):
+        raise TypeError(f"progress must be True, False, None or a function of one str, got {type(progress).__name__}")
+    say = progress if callable(progress) else (lambda s: None)
     allowed = _allowed_kinds(kind, kinds, dt)
     kind_name = allowed[0] if kind != "auto" else None
     vsets = [_as_validation(v, i) for i, v in enumerate(validation or [])]
