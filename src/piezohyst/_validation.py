@@ -22,6 +22,11 @@ def as_signal(name: str, value: Any, *, min_length: int = 1) -> FloatArray:
         raise TypeError(f"{name} must be a 1-D array of numbers, got {type(value).__name__}")
     if np.iscomplexobj(value):  # (a cast to float would drop the imaginary part with only a warning)
         raise TypeError(f"{name} must be real numbers, got complex values")
+    if isinstance(value, np.ma.MaskedArray) and np.ma.getmaskarray(value).any():
+        # (the masked samples were fitted as if valid: found by a helper)
+        first = int(np.argmax(np.ma.getmaskarray(value).ravel()))
+        raise ValueError(f"{name} has {int(np.ma.count_masked(value))} masked sample(s), first at index {first}: "
+                         f"fill them (.filled(...)) or leave them out")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:

@@ -164,6 +164,12 @@ def save_model(model: Any, path: str | os.PathLike[str], *, fit: Any = None, dat
     dataset : Dataset, optional
         Its SHA-256 and source are stored, so the model says what it was identified on.
     """
+    if isinstance(model, (str, os.PathLike)) and not isinstance(path, (str, os.PathLike)):
+        # (save_model("m.json", model) failed inside pathlib: found by a helper; save_dataset
+        # takes the path first, which is how the swap happens)
+        raise TypeError(f"save_model(model, path): the model comes first, then the file name; got the name "
+                        f"{os.fspath(model)!r} first")
+    _check_path("path", path)
     check_model_file_name(path)
     doc = model_to_dict(model, fit=fit, dataset=dataset, units=units, extra=extra)
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
@@ -441,7 +447,14 @@ def _check_fit_block(fit: Any, source: str) -> None:
         raise ModelFileError(f"{source}: fit.largest_loop_V must be a number of volts >= 0, got {json.dumps(loop)[:60]}")
 
 
+def _check_path(name: str, path: Any) -> None:
+    if not isinstance(path, (str, os.PathLike)):
+        hint = " (a model document as a dict: piezohyst.modelio.model_from_dict)" if isinstance(path, dict) else ""
+        raise TypeError(f"{name} must be a file name (str or os.PathLike), got {type(path).__name__}{hint}")
+
+
 def load_model(path: str | os.PathLike[str]) -> Any:
     """Load a model saved by :func:`save_model` (any kind, any schema version up to this one's)."""
+    _check_path("path", path)
     p = Path(path).expanduser()
     return model_from_dict(load_model_document(p), source=str(p))

@@ -232,6 +232,10 @@ class VirtualRig:
     def __init__(self, settings: RigSettings | None = None, *, seed: int | None = 0, **overrides: Any):
         base = settings if settings is not None else RigSettings()
         self.settings = replace(base, **overrides) if overrides else base
+        if seed is not None and (isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer))
+                                 or seed < 0):
+            # (seed="a" failed eight frames deep in numpy: found by a helper)
+            raise ValueError(f"seed must be a whole number >= 0 or None, got {seed!r}")
         self.seed = seed
         s = self.settings
         self.dt = float(s.dt)

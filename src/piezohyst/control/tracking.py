@@ -154,7 +154,14 @@ class TrackingResult:
                 "evaluated_samples": self.metrics.samples, "clipped_samples": self.clipped, **{
                     k: v for k, v in self.info.items() if isinstance(v, (int, float, str, bool)) or v is None}}
 
-    def plot(self, axes: Any = None, title: str | None = None, *, u_range: Any = None) -> Any:
+    def __repr__(self) -> str:
+        """One line: the figures of merit (the dataclass's repr printed every array)."""
+        m = self.metrics
+        return (f"TrackingResult({(self.label + ', ') if self.label else ''}{int(self.reference.size)} samples, "
+                f"e_max {m.e_max:.4g} um ({m.e_max_percent:.3g} % of span), rmse {m.rmse:.4g} um"
+                + (f", {self.clipped} commands clipped" if self.clipped else "") + ")")
+
+    def plot(self, axes: Any = None, title: str | None = None, *, u_range: Any = None, ax: Any = None) -> Any:
         """The run as a figure (cf. the paper's Figs. 6-9): desired and measured displacement,
         the error on the scale of the scored window (shaded), the command, and measured against
         desired (:func:`piezohyst.plots.plot_tracking`).
@@ -167,6 +174,8 @@ class TrackingResult:
             Default: the run's label and its figures of merit.
         u_range : (low, high), optional
             The actuator's range (V) to draw on the command panel.
+        ax : Axes or sequence of Axes, optional
+            Another name for ``axes`` (as :func:`~piezohyst.plots.plot_loops` calls it).
 
         Returns
         -------
@@ -174,6 +183,11 @@ class TrackingResult:
             Shown once when it is a Jupyter cell's value; ``fig.savefig(...)`` saves it.
         """
         from ..plots import figure_result, plot_tracking
+
+        if ax is not None:  # (out.plot(ax=ax) was a TypeError: found by a helper)
+            if axes is not None:
+                raise TypeError("give axes= or ax=, not both")
+            axes = ax
 
         period = self.period if self.period is not None else estimate_period(self.reference)
         scored = cycles_after_first(self.reference.size, period)

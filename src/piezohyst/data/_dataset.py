@@ -55,6 +55,16 @@ class Dataset:
             raise TypeError(f"meta must be a dict (or None), got {type(self.meta).__name__}")
         object.__setattr__(self, "meta", dict(self.meta or {}))  # (None failed: 'NoneType' is not iterable)
 
+    def __repr__(self) -> str:
+        """One line: samples, rate, ranges, source (the dataclass's repr printed every array)."""
+        n = int(self.t.size)
+        step = float(self.t[-1] - self.t[0]) / (n - 1) if n >= 2 else 0.0
+        rate = f"{1.0 / step:.6g} Hz" if step > 0 else "?"
+        src = self.meta.get("source")
+        return (f"Dataset({n} samples at {rate}, u {float(np.min(self.u)):.4g}..{float(np.max(self.u)):.4g} V, "
+                f"y {float(np.min(self.y)):.4g}..{float(np.max(self.y)):.4g} um"
+                + (f", source={str(src)[:80]!r}" if src is not None else "") + ")")
+
     @classmethod
     def _checked(cls, t: FloatArray, u: FloatArray, y: FloatArray, meta: dict[str, Any]) -> Dataset:
         """A data set from arrays the readers have already checked (1-D float64 of one length, at
@@ -155,8 +165,12 @@ class Dataset:
         from ._columns import assemble
         from ._frame import FrameSource
 
+        # the meta that to_dataframe wrote (its provenance: source, seed, rig) comes back too; what
+        # this reading says (columns, units) is said anew (it was dropped: found by a helper)
+        saved = getattr(df, "attrs", {}).get("meta")
         return assemble(FrameSource(df, where="DataFrame"), t_col=t_col, u_col=u_col, y_col=y_col,
-                        fs=fs, units=units, resample=resample)
+                        fs=fs, units=units, resample=resample,
+                        extra_meta=dict(saved) if isinstance(saved, dict) else None)
 
     def to_dataframe(self) -> pd.DataFrame:
         """The samples as a DataFrame with columns ``t`` (s), ``u`` (V), ``y`` (µm).

@@ -25,6 +25,10 @@ from .base import Compensator, check_dt, register_kind
 from .play import finite_signal, pi_simulate, pi_step
 
 
+def _few_values(r: FloatArray, k: int = 5) -> str:
+    return ", ".join(f"{v:g}" for v in r[:k]) + (", ..." if r.size > k else "")
+
+
 def equal_thresholds(n: int = 20, u_max: float = 100.0) -> FloatArray:
     """Thresholds of eq. (4): ``r_i = (i - 1) / (n + 1) * u_max`` for ``i = 1..n``.
 
@@ -47,6 +51,10 @@ def equal_thresholds(n: int = 20, u_max: float = 100.0) -> FloatArray:
 
 
 def _check_thresholds(r: FloatArray) -> None:
+    if r.size > 1 and np.any(np.diff(r) < 0) and r.min() == 0.0:
+        # ([2, 1, 0] was told "must start at 0": found by a helper)
+        raise ValueError(f"thresholds must increase from 0 (0 = r_1 < r_2 < ..., eq. 3): they are given in another "
+                         f"order ({_few_values(r)}); sort them, with their weights")
     if r[0] != 0.0:
         raise ValueError(f"thresholds must start at 0 (r_1 = 0, eq. 3), got r_1 = {r[0]}")
     steps = np.diff(r)
