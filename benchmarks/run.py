@@ -395,6 +395,29 @@ def pi_gram_row(b: Bench) -> None:
 
 
 # -- Bouc-Wen, PSO, fits ---------------------------------------------------------------------------
+@bench("compensator-limits")
+def compensator_limits(b: Bench) -> None:
+    """The inverse P-I's commands for a million samples kept to the amplifier's range by the
+    compensator (``u_range``), against what a user would write by hand: the commands unlimited,
+    then ``np.clip`` (found by a helper: 190x, the limits applied sample by sample in Python)."""
+    import piezohyst as ph
+
+    model = ph.PrandtlIshlinskii(ph.equal_thresholds(20, 100.0), np.full(20, 0.02))
+    x = model.simulate(smooth_record()) * 1.05  # a reference 5 % beyond the stroke: some commands clip
+    free = model.compensator()
+    limited = model.compensator(u_range=(0.0, 100.0))
+    if not np.array_equal(limited.command(x), np.clip(free.command(x), 0.0, 100.0)):
+        raise AssertionError("compensator-limits: the limited commands differ from np.clip of the free ones")
+    t = paired({"ours": lambda: limited.command(x), "by hand": lambda: np.clip(free.command(x), 0.0, 100.0)},
+               rounds=5, repeat=3, clock="cpu")
+    ratio = t["ours"] / t["by hand"]
+    b.row("compensator-limits", f"InversePIFeedforward.command with u_range, {x.size:,} samples",
+          ours=fmt_t(t["ours"]), baseline=f"the commands without limits, then np.clip: {fmt_t(t['by hand'])}",
+          ratio=ratio, ratio_is="ours / baseline (slow-down)", target="<= 1.3 (no slower than by hand)",
+          met=ratio <= 1.3, note=f"CPU time of the calling thread; {limited.limited:,} commands clipped",
+          ours_s=t["ours"], baseline_s=t["by hand"])
+
+
 @bench("bw-simulate")
 def bw_simulate(b: Bench) -> None:
     import piezohyst as ph

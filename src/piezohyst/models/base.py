@@ -270,8 +270,16 @@ class Compensator:
         raw = np.asarray(self._command(xs), dtype=np.float64)
         if self.u_range is None and self.max_slew is None:
             out = raw
-        else:
-            out = np.array([self._limit(float(v)) for v in raw])
+        elif self.max_slew is None:  # the range alone: numpy's clip (vectorised)
+            assert self.u_range is not None
+            out = np.clip(raw, self.u_range[0], self.u_range[1])
+            self.limited += int(np.count_nonzero(out != raw))
+        else:  # the slew limit is a recursion: one compiled pass (models._limits)
+            from ._limits import limit_run
+
+            lo, hi = self.u_range if self.u_range is not None else (-math.inf, math.inf)
+            out, changed, _ = limit_run(raw, float(lo), float(hi), float(self.max_slew), 0.0, False)
+            self.limited += int(changed)
         limited = self.limited
         self.reset()
         self.limited = limited  # what the limits did to this command stays readable
