@@ -175,6 +175,14 @@ def make_inputs(root: Path) -> dict[str, str]:
     model("weights_numtext", {"p.weights": ["0.01"] * 8})
     model("param_typo", {"p.ofset": 0.5})
     # outputs that exist already, and things that are not what they seem
+    # (this round: a spreadsheet's serial dates as the time, a user's own summary.csv in a fleet's
+    # out folder, a file that is not a table for the Bouc-Wen benchmark)
+    text("excel_days.csv", "Time,Voltage (V),Displacement (um)\n" + "\n".join(
+        f"{46354.5 + a / 86400:.12f},{b:.9g},{c:.9g}" for a, b, c in zip(t, u, y)) + "\n")
+    mine = root / "my_fleet"
+    mine.mkdir()
+    (mine / "summary.csv").write_text("my own notes\n")
+    f["my_fleet"] = mine
     text("exists.json", "{}\n")
     text("a_file.txt", "I am a file, not a folder\n")
     full = root / "repro_full"
@@ -427,6 +435,14 @@ CASES: list[Case] = [
       "input_range_V"),
     # it advised --fs, which track reads only for a --reference file
     C("track a 1 kHz rate model on the 10 kHz rig", "track --model {rate1k} --freq 1", "--rig-settings"),
+    # this round
+    C("identify a time column of spreadsheet serial dates", "identify {excel_days} --model pi --method lsq",
+      "--units t=day"),
+    C("fleet into a folder holding the user's own summary.csv", "fleet identify {data} --model pi --out {my_fleet}",
+      "summary.csv"),
+    C("benchmark bouc-wen --data a CSV", "benchmark bouc-wen --data {data}", "data.csv"),
+    C("fleet --workers just beyond the cap", "fleet identify {data} --model pi --out {root}/fl9 --workers 9999",
+      "--workers"),
 ]
 
 #: Python keyword spelling that must not reach a command-line user

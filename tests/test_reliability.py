@@ -312,6 +312,18 @@ def _api_cases(tmp: Path) -> list[tuple[str, object, tuple[str, ...]]]:
         ("identify_many paths None", lambda: ph.fleet.identify_many(None, client="serial"), ("paths",)),
         ("resample_reference beyond memory", lambda: resample_reference(np.array([0.0, 1e6]), np.array([0.0, 1.0]),
                                                                          1e9), ("Hz",)),
+        # this round (a helper in a notebook, another running batches)
+        ("save_model with its arguments swapped", lambda: ph.save_model(str(tmp / "sw.json"), pi),
+         ("the model comes first",)),
+        ("load_model of a dict", lambda: ph.load_model({"schema": 1}), ("path", "dict")),
+        ("VirtualRig seed as text", lambda: ph.VirtualRig(seed="a"), ("seed",)),
+        ("fit_pi on masked samples", lambda: ph.fit_pi(np.ma.masked_array(u, mask=np.arange(u.size) == 5), y),
+         ("masked",)),
+        ("fit_model progress as text", lambda: ph.fit_model(u, y, 1e-3, "pi", progress="yes"), ("progress",)),
+        ("identify_many workers beyond the cores", lambda: ph.fleet.identify_many(str(tmp), workers=10**4),
+         ("workers",)),
+        ("P-I thresholds in another order", lambda: ph.PrandtlIshlinskii([2.0, 1.0, 0.0], [0.1, 0.1, 0.1]),
+         ("thresholds", "order")),
     ]
 
 
