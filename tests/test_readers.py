@@ -1035,3 +1035,13 @@ def test_three_decimals_with_a_point_stay_decimals(tmp_path):
     ds = ph.load_dataset(p, u_col=1, y_col=2)
     assert ds.meta["decimal"] == "." and "thousands" not in ds.meta
     assert ds.u[250] == pytest.approx(1.25) and ds.y[250] == pytest.approx(2.5)
+
+
+def test_a_time_beyond_single_precisions_range_is_no_single_precision_number(tmp_path):
+    """t = 3.4028235677973366e+38 (just above float32's largest) overflowed in the check for a
+    single-precision time column, a RuntimeWarning (an error under -W error) instead of the
+    reader's own answer (found by the readers' fuzz test)."""
+    p = tmp_path / "big.csv"
+    p.write_text("t,u,y\n0,0.841471,0.909297\n0.001,0.909297,0.141120\n3.4028235677973366e+38,0.141120,-0.756802\n")
+    with pytest.raises(DataError, match="not uniformly sampled"):
+        ph.load_dataset(p)

@@ -265,7 +265,10 @@ def _single_precision_resolution(raw: np.ndarray, t: np.ndarray) -> float | None
     """The resolution (s) of a time column that holds single-precision numbers, at its largest
     value; None where it holds finer ones (told from its first samples at once, most often)."""
     def single(x: np.ndarray) -> bool:
-        return bool(np.array_equal(x, x.astype(np.float32).astype(np.float64)))
+        # a value beyond single precision's range is no single-precision number (it overflowed to
+        # inf in the cast, with numpy's RuntimeWarning: found by fuzzing)
+        with np.errstate(over="ignore", invalid="ignore"):
+            return bool(np.array_equal(x, x.astype(np.float32).astype(np.float64)))
 
     if raw.size < 3 or raw[-1] == raw[0] or not single(raw[:1024]) or not single(raw):
         return None
