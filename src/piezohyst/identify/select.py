@@ -508,6 +508,18 @@ def fit_model(
         every candidate with its hold-out error (µm and % of span), ``info["holdout"]`` the
         winner's, ``info["search"]`` the ranges; ``warnings`` what deserves attention.
     """
+    # the display opened before anything is checked or changed, so the arguments go on as given
+    # (it failed deep in the search, "'bool' object is not callable": found by a helper)
+    if progress is True:
+        from ..progress import Progress
+
+        with Progress("identifying") as shown:
+            return fit_model(u, y, dt, kind, validation=validation, holdout=holdout, delay=delay, n=n, kinds=kinds,
+                             margin=margin, taus=taus, input_taus=input_taus, max_delay=max_delay, statics=statics,
+                             seed=seed, bouc_wen_options=bouc_wen_options, progress=shown, warmup=warmup,
+                             glitches=glitches, history=history)
+    if not (progress is None or progress is False or callable(progress)):
+        raise TypeError(f"progress must be True, False, None or a function of one str, got {type(progress).__name__}")
     t0 = time.perf_counter()
     if isinstance(kind, str) and kind.strip().lower() == "auto":  # spelt as kind names may be ("PI", "Preisach")
         kind = "auto"
@@ -555,16 +567,6 @@ def fit_model(
             "rising loop. A sensor that reads the other way round: negate y first; a stage whose loop falls "
             "after each reversal for longer than these swings: excite a wider range" + butterfly)
     dt = as_scalar("dt", dt, positive=True) if dt is not None else None
-    if progress is True:  # (it failed deep in the search, "'bool' object is not callable": found by a helper)
-        from ..progress import Progress
-
-        with Progress("identifying") as shown:
-            return fit_model(u, y, dt, kind, validation=validation, holdout=holdout, delay=delay, n=n, kinds=kinds,
-                             margin=margin, taus=taus, input_taus=input_taus, max_delay=max_delay, statics=statics,
-                             seed=seed, bouc_wen_options=bouc_wen_options, progress=shown, warmup=warmup,
-                             glitches=glitches, history=history)
-    if not (progress is None or progress is False or callable(progress)):
-        raise TypeError(f"progress must be True, False, None or a function of one str, got {type(progress).__name__}")
     say = progress if callable(progress) else (lambda s: None)
     allowed = _allowed_kinds(kind, kinds, dt)
     kind_name = allowed[0] if kind != "auto" else None
