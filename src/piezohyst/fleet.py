@@ -653,15 +653,6 @@ def _write_model(doc: dict[str, Any], path: Path, force: bool) -> Path:
 LOG_EVERY_S = 30.0
 
 
-def _stderr_is_a_terminal() -> bool:
-    import sys
-
-    try:
-        return bool(sys.stderr.isatty())
-    except (AttributeError, ValueError):  # closed or replaced
-        return False
-
-
 class _Progress:
     """A rich progress bar on stderr where it is a terminal, plain lines where it is not (a log),
     or a user's callback, or nothing."""
@@ -672,15 +663,15 @@ class _Progress:
         self.done = 0
         self.total = total
         self.failed = 0
-        self.lines = progress is True and not _stderr_is_a_terminal()
+        from .progress import detect_mode
+
+        # a batch's log (nohup, SLURM, CI) got no progress until the end, then one line cut at 80
+        # columns (found by a helper): plain lines there, each tenth of the batch and at least
+        # every LOG_EVERY_S; the bar on a terminal
+        self.lines = progress is True and detect_mode() != "terminal"
         self.where = where
         self.started = self.last_line = time.monotonic()
-        if self.lines:
-            # a batch's log (nohup, SLURM, CI) got no progress until the end, then one line cut at
-            # 80 columns (found by a helper): plain lines instead, each tenth of the batch and
-            # at least every LOG_EVERY_S
-            pass
-        elif progress is True:
+        if progress is True and not self.lines:
             from rich.console import Console
             from rich.progress import (
                 BarColumn,

@@ -10,6 +10,7 @@ with ``argument --flag:``): numbers must be finite, counts positive, seeds non-n
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import linecache
 import math
@@ -17,7 +18,7 @@ import os
 import re
 import sys
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 #: The longest record (samples) a command builds; beyond it a run would take gigabytes per signal.
 #: (50 million samples: 400 MB per float64 signal, 83 minutes at 10 kHz.)
@@ -50,15 +51,30 @@ class ArgumentParser(argparse.ArgumentParser):
 STDOUT_TAKEN = False
 
 
-def progress_wanted(args: argparse.Namespace) -> bool:
-    """Whether a long run shows its progress: on standard error when that is a terminal, with or
-    without --json (which keeps standard output to the data alone); identify, reproduce and
-    benchmark showed none with --json (found by a helper). Not into a file or a pipe, where a
-    spinner left a blank line before an error message (found by the same helper)."""
-    try:
-        return bool(sys.stderr.isatty())
-    except (AttributeError, ValueError):  # closed or replaced
-        return False
+def progress_wanted() -> bool:
+    """Whether a long run shows its progress: on standard error when that is a terminal
+    (:func:`piezohyst.progress.detect_mode`), with or without --json (which keeps standard output
+    to the data alone); identify, reproduce and benchmark showed none with --json (found by a
+    helper). Not into a file or a pipe, where a spinner left a blank line before an error message
+    (found by the same helper)."""
+    from ..progress import detect_mode
+
+    return detect_mode() == "terminal"
+
+
+@contextlib.contextmanager
+def spinner(first: str = "starting") -> Iterator[Callable[[str], None]]:
+    """A transient spinner on standard error naming the step under way, where
+    :func:`progress_wanted`; ``step(text)`` names the next one (a no-op otherwise)."""
+    if not progress_wanted():
+        yield lambda text: None
+        return
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                  console=console(stderr=True), transient=True) as bar:
+        task = bar.add_task(first, total=None)
+        yield lambda text: bar.update(task, description=text)
 
 
 def console(stderr: bool = False) -> Any:

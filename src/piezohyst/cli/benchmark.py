@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import UsageError, console, guarded, print_json, progress_wanted, seed
+from ._common import UsageError, console, guarded, print_json, seed, spinner
 
 
 def _seeds(text: str) -> list[int]:
@@ -32,16 +32,6 @@ def _scales(text: str) -> list[float]:
 MAX_BOUNDS_SCALE = 1e6
 
 
-def _with_spinner(run):  # type: ignore[no-untyped-def]
-    """``run(on_step)`` under a transient spinner on standard error that shows each step."""
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                  console=console(stderr=True), transient=True) as bar:
-        task = bar.add_task("loading", total=None)
-        return run(lambda s: bar.update(task, description=s))
-
-
 def cmd_benchmark(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -63,10 +53,8 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
         raise UsageError("give --seed or --seeds, not both")
     seeds = args.seeds if args.seeds is not None else [args.seed if args.seed is not None else 0]
     scales = args.bounds_scale
-    def run(on_step=None):  # type: ignore[no-untyped-def]
-        return guarded(lambda: run_benchmarks(path, seeds=seeds, bounds_scales=scales, on_step=on_step), path)
-
-    results = _with_spinner(run) if progress_wanted(args) else run()
+    with spinner("loading") as step:
+        results = guarded(lambda: run_benchmarks(path, seeds=seeds, bounds_scales=scales, on_step=step), path)
     if args.json:
         out = results[0].to_dict()  # the first run's fields at the top, as before --seeds existed
         out["runs"] = [r.to_dict() for r in results]

@@ -6,9 +6,8 @@ import argparse
 import math
 from typing import Any
 
-from ._common import progress_wanted
 from ._common import (UsageError, add_data_options, console, guarded, load_cli_dataset, nonnegative_int, positive_int,
-                      print_json, sample_range, seed, shown)
+                      print_json, progress_wanted, sample_range, seed, shown, spinner)
 
 #: --model choices: "auto" and every kind name and alias (from the registry, at parse time)
 _MODEL_HELP = ("model kind: auto (every kind, chosen on held-out data), pi (the paper's P-I), bouc-wen (the "
@@ -144,7 +143,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         vd = load_cli_dataset(vf, args)
         _check_magnitude(vd, vf)
         validation.append((vf, vd, 0))
-    show = progress_wanted(args)
+    show = progress_wanted()
     if args.delay is None:
         args.delay = "auto" if method == "select" else 0
 
@@ -156,7 +155,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
             return ph.fit_pi(train.u, train.y, n=args.n or 20, method=method, seed=args.seed, delay=args.delay,
                              max_iter=args.iterations, progress=show and method == "pso")
         vsets = [(vd.u, vd.y, first) for _, vd, first in validation]
-        return _select(ph, train, kind, args, vsets, show)
+        return _select(ph, train, kind, args, vsets)
 
     # a check of the API refusing these data names the file (the flags were checked above)
     fit = guarded(fit_it, args.data)
@@ -201,21 +200,14 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-def _select(ph: Any, train: Any, kind: str, args: argparse.Namespace, vsets: list[Any], show: bool) -> Any:
-    """``fit_model`` with a spinner naming the stage (on stderr; nothing with --json)."""
+def _select(ph: Any, train: Any, kind: str, args: argparse.Namespace, vsets: list[Any]) -> Any:
+    """``fit_model`` with a spinner naming the stage (on a terminal's standard error)."""
     opts = dict(validation=vsets or None, delay=args.delay, n=args.n, seed=args.seed,
                 bouc_wen_options={"max_iter": args.iterations, "polish": not args.no_polish}, warmup=args.warmup,
                 glitches="keep" if args.keep_glitches else "bridge", history=args.history)
     dt = train.dt
-    if not show:
-        return ph.fit_model(train.u, train.y, dt, kind, **opts)
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                  console=console(stderr=True), transient=True) as bar:
-        task = bar.add_task("identifying", total=None)
-        return ph.fit_model(train.u, train.y, dt, kind, progress=lambda s: bar.update(task, description=f"choosing: {s}"),
-                            **opts)
+    with spinner("identifying") as step:
+        return ph.fit_model(train.u, train.y, dt, kind, progress=lambda s: step(f"choosing: {s}"), **opts)
 
 
 def _print_report(fit: Any, vrows: list[dict[str, Any]], out_path: str | None, ds: Any, train: Any,

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import progress_wanted
 from ._common import (
     UsageError,
     add_rig_options,
     console,
     figure_formats,
     print_json,
+    progress_wanted,
     rig_from_args,
     rig_rate_note,
 )
@@ -88,7 +88,7 @@ def _submitter(bg, tmp, fmts):  # type: ignore[no-untyped-def]
 def _run(args, rig, hook):  # type: ignore[no-untyped-def]
     from ..experiments.paper import run_paper_experiment
 
-    if not progress_wanted(args):
+    if not progress_wanted():
         return run_paper_experiment(rig, seed=args.seed, on_paper_part=hook)
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 

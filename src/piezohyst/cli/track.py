@@ -5,12 +5,11 @@ paper's figures of merit and, with ``-o``, write the runs."""
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
-from typing import Any, Callable, Iterator
+from typing import Any
 
 from ._common import (UsageError, add_rig_options, check_sinusoids, console, finite_float, freqs, nonnegative_float,
-                      positive_float, positive_int, print_json, progress_wanted, rig_from_args, rig_rate_note, shown)
+                      positive_float, positive_int, print_json, rig_from_args, rig_rate_note, shown, spinner)
 from .compensate import compensator_for
 
 
@@ -144,7 +143,7 @@ def cmd_track(args: argparse.Namespace) -> int:
     if args.method == "best":
         from ..commissioning import commission
 
-        with _spinner(args) as step:
+        with spinner() as step:
             ctl = commission(rig, seed=args.seed, progress=lambda s: step(f"commissioning: {s}"))
             rows = []
             for label, ref, period in refs:
@@ -162,7 +161,7 @@ def cmd_track(args: argparse.Namespace) -> int:
         ff = compensator_for(model, rig.dt, on_rig=True)
     except (ValueError, TypeError) as exc:
         raise UsageError(f"{args.model}: no compensator from this model: {exc}") from None
-    with _spinner(args) as step:
+    with spinner() as step:
         rows = []
         for label, ref, period in refs:
             step(f"tracking {label}")
@@ -177,22 +176,6 @@ def cmd_track(args: argparse.Namespace) -> int:
                          **out.summary()})
     written = _write_runs(args.output, runs, args) if args.output else None
     return _print_track(args, rows, rig, extra={"written": written})
-
-
-@contextlib.contextmanager
-def _spinner(args: argparse.Namespace) -> Iterator[Callable[[str], None]]:
-    """A transient spinner on standard error naming the step under way (a 12 s run showed
-    nothing: found by a helper); ``step(text)`` names the next one. Silent where
-    :func:`progress_wanted` says so."""
-    if not progress_wanted(args):
-        yield lambda text: None
-        return
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                  console=console(stderr=True), transient=True) as bar:
-        task = bar.add_task("starting", total=None)
-        yield lambda text: bar.update(task, description=text)
 
 
 def _freq(label: str) -> float | None:
