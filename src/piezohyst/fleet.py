@@ -558,7 +558,7 @@ def _effective_options(d: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _option_changes(before: Any, now: FitOptions, path: Path | None = None, samples_sha256: Any = None) -> str:
+def _option_changes(before: Any, now: FitOptions, path: Path, samples_sha256: Any) -> str:
     """What differs between the options a model file records and this run's, as they act on the
     fit (:func:`_effective_options`; "" if nothing). Options that say how to read the file
     (``u_col``, ``delimiter``, ...) count only where they read other samples from ``path`` than
@@ -570,7 +570,7 @@ def _option_changes(before: Any, now: FitOptions, path: Path | None = None, samp
     then = _effective_options(before)
     keys = [k for k, v in now_d.items() if then.get(k) != v]
     reading = set(now.data_options())
-    if keys and all(k in reading for k in keys) and path is not None and _same_samples(path, now, samples_sha256):
+    if keys and all(k in reading for k in keys) and _same_samples(path, now, samples_sha256):
         return ""
     return "; ".join(f"{k} {then.get(k)!r} there, {now_d[k]!r} now" for k in keys)
 
@@ -744,9 +744,13 @@ LOCAL_CLUSTER_CONFIG = {
 }
 
 
-def _check_workers(n: int) -> None:
+def _check_workers(n: Any) -> None:
+    """Refuse a number of local workers that is no positive integer, or more than the machine
+    carries (:func:`~piezohyst._blas.too_many_workers`)."""
     from ._blas import too_many_workers
 
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"workers must be a positive integer, got {n!r}")
     why = too_many_workers(int(n))
     if why is not None:
         raise ValueError(f"workers: {why.replace('pass its address', 'pass its address as client=')}")
@@ -767,8 +771,6 @@ def local_cluster(workers: int | None = None, *, dashboard_address: str | None =
     from dask.system import CPU_COUNT
 
     n = CPU_COUNT if workers is None else workers
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ValueError(f"workers must be a positive integer, got {workers!r}")
     _check_workers(n)
     with dask.config.set(LOCAL_CLUSTER_CONFIG):  # read by the servers as they start; the nannies pass it on
         cluster = distributed.LocalCluster(
@@ -1122,8 +1124,6 @@ def identify_many(
         raise ValueError("workers sizes the local cluster made when client is None; with a client or a scheduler, "
                          "the cluster has the workers it has")
     if workers is not None:  # up front, not after the records are read
-        if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
-            raise ValueError(f"workers must be a positive integer, got {workers!r}")
         _check_workers(workers)
     records = find_records(paths)
     out_dir = Path(out) if out is not None else None

@@ -225,17 +225,16 @@ _EXCEL_SERIAL_DAYS = (20_000.0, 80_000.0)
 _IMPLAUSIBLE_STEP = 2e-7
 
 
-def _refuse_excel_serial_days(where: str, label: str, how: str, t: np.ndarray) -> None:
+def _refuse_excel_serial_days(where: str, label: str, how: str, t: np.ndarray, mean: float) -> None:
     """Refuse a time column without a unit whose values are Excel serial dates (days).
 
     A spreadsheet's date-time column saved as numbers reads 46354.5 for 2026-11-28 12:00, and
     steps of 1.16e-8 for a millisecond: taken as seconds, a record sampled at 86.4 MHz, which
     every model with dynamics and every model file then carried (found by fuzzing lab files).
     Refused only where both hold: values in the dates' range and a step no acquisition makes in
-    seconds; the message names the unit to state."""
-    if how != "assumed" or t.size < 2:
+    seconds (``mean``: the mean step); the message names the unit to state."""
+    if how != "assumed":
         return
-    mean = float(t[-1] - t[0]) / (t.size - 1)
     lo, hi = _EXCEL_SERIAL_DAYS
     if not (lo <= float(t[0]) and float(t[-1]) <= hi and 0.0 < mean < _IMPLAUSIBLE_STEP):
         return
@@ -402,10 +401,10 @@ def assemble(src: Source, *, t_col: Any = None, u_col: Any = None, y_col: Any = 
                             f"(t = {t[i + 1]:.10g} s) after t = {t[i]:.10g} s")
         if not np.all(np.isfinite(steps)):
             raise DataError(f"{where}: the time column {labels['t']!r} spans more than a float can hold")
-        _refuse_excel_serial_days(where, labels["t"], convs["t"].how, t)
         # uniform if every step is within the tolerance of the mean step (then of the median too);
         # only a record that is not needs the median (a sort) to say how far off it is
         mean = float(t[-1] - t[0]) / (t.size - 1)
+        _refuse_excel_serial_days(where, labels["t"], convs["t"].how, t, mean)
         dev = np.abs(steps - mean)
         j = int(np.argmax(dev))
         med = mean

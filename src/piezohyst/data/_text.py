@@ -33,13 +33,14 @@ CANDIDATES: list[tuple[str | None, str]] = [
     ("\t", "."), ("\t", ","), (";", "."), (";", ","), (",", "."), ("|", "."), ("|", ","),
     (None, "."), (None, ","),
 ]
-_NUM = {
-    ".": re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$"),
-    ",": re.compile(r"^[+-]?(?:\d{1,3}(?:\.\d{3})+(?:,\d*)?|\d+,?\d*|,\d+)(?:[eE][+-]?\d+)?$"),
-}
 #: a number with a decimal comma grouped in thousands by points (``1.010,2``, as German Excel
 #: writes a cell formatted so)
-_GROUPED = re.compile(r"^[+-]?\d{1,3}(?:\.\d{3})+(?:,\d*)?$")
+_GROUPED_BODY = r"\d{1,3}(?:\.\d{3})+(?:,\d*)?"
+#: a number as one field holds it, by decimal mark (unanchored: :func:`_all_numbers` joins them)
+_NUM_BODY = {".": r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?",
+             ",": r"[+-]?(?:" + _GROUPED_BODY + r"|\d+,?\d*|,\d+)(?:[eE][+-]?\d+)?"}
+_NUM = {mark: re.compile("^" + body + "$") for mark, body in _NUM_BODY.items()}
+_GROUPED = re.compile(r"^[+-]?" + _GROUPED_BODY + "$")
 _SPECIAL = re.compile(r"^[+-]?(?:inf|infinity)$", re.IGNORECASE)
 #: what pandas reads as missing (NaN)
 _NA = {"", "na", "n/a", "nan", "-nan", "+nan", "null", "none", "#n/a", "<na>", "1.#ind", "1.#qnan",
@@ -60,8 +61,6 @@ def _cls(field_text: str, decimal: str) -> str:
     return "x"
 
 
-_NUM_BODY = {".": r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?",
-             ",": r"[+-]?(?:\d{1,3}(?:\.\d{3})+(?:,\d*)?|\d+,?\d*|,\d+)(?:[eE][+-]?\d+)?"}
 #: (delimiter, decimal) -> a whole line of numbers only: such a line's classes are all "n" without
 #: splitting it (most lines of a data file; the rest goes field by field through _cls)
 def _all_numbers(delim: str | None, decimal: str) -> re.Pattern[str]:

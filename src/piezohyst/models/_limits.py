@@ -16,15 +16,13 @@ from .._validation import FloatArray
 
 
 @njit
-def limit_run(raw: FloatArray, lo: float, hi: float, slew: float, last: float,
-              has_last: bool) -> tuple[FloatArray, int, float]:  # pragma: no cover - compiled
-    """``(limited commands, how many the limits changed, the last command)``; ``lo``/``hi`` are
-    -inf/inf without a range, ``slew`` inf without a slew limit; ``last`` (when ``has_last``) is
-    the command before ``raw[0]``."""
+def limit_run(raw: FloatArray, lo: float, hi: float, slew: float) -> tuple[FloatArray, int]:  # pragma: no cover
+    """``(limited commands, how many the limits changed)`` from a reset compensator (no command
+    before ``raw[0]``); ``lo``/``hi`` are -inf/inf without a range."""
     out = np.empty(raw.shape[0])
     changed = 0
-    prev = last
-    have = has_last
+    prev = 0.0
+    have = False
     for k in range(raw.shape[0]):
         u = raw[k]
         v = u
@@ -42,4 +40,4 @@ def limit_run(raw: FloatArray, lo: float, hi: float, slew: float, last: float,
         out[k] = v
         prev = v
         have = True
-    return out, changed, prev
+    return out, changed

@@ -278,7 +278,7 @@ class Compensator:
             from ._limits import limit_run
 
             lo, hi = self.u_range if self.u_range is not None else (-math.inf, math.inf)
-            out, changed, _ = limit_run(raw, float(lo), float(hi), float(self.max_slew), 0.0, False)
+            out, changed = limit_run(raw, float(lo), float(hi), float(self.max_slew))
             self.limited += int(changed)
         limited = self.limited
         self.reset()
