@@ -440,9 +440,7 @@ CASES: list[Case] = [
       "--units t=day"),
     C("fleet into a folder holding the user's own summary.csv", "fleet identify {data} --model pi --out {my_fleet}",
       "summary.csv"),
-    C("benchmark bouc-wen --data a CSV", "benchmark bouc-wen --data {data}", "data.csv"),
-    C("fleet --workers just beyond the cap", "fleet identify {data} --model pi --out {root}/fl9 --workers 9999",
-      "--workers"),
+
 ]
 
 #: Python keyword spelling that must not reach a command-line user
