@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import piezohyst as ph
-from piezohyst.signals import noise_e_max, sensor_noise_rms
+from piezohyst.signals import noise_e_max, sensor_noise_rms, sensor_resolution
 
 from .plants.zoo import zoo
 from .test_zoo import steady_range
@@ -138,3 +138,77 @@ def test_identify_reports_the_noise_it_cannot_take_out(tmp_path, capsys):
     assert out["fit_rmse_beyond_noise"] < 0.5 * out["sensor_noise_rms"]
     assert main(["identify", str(path), "--model", "pi"]) == 0
     assert "sensor noise" in capsys.readouterr().out
+
+
+# -- a sensor that reads in counts (found by a helper's stage with a 16-level sensor: the fit called
+# the held counts a clipped sensor, the noise floor read 0.0001 % where half a count is 5 %, and
+# commissioning ended at ki = 0 without a word)
+
+
+@settings(max_examples=40, deadline=None)
+@given(step=st.floats(1e-4, 10.0), offset=st.floats(-1e3, 1e3), levels=st.integers(3, 4000),
+       seed=st.integers(0, 2**31 - 1))
+def test_sensor_resolution_is_the_grid_of_a_scaled_count(step, offset, levels, seed):
+    """Law: readings that are whole counts times a scale plus an offset (as a converter gives them,
+    rounded by the scaling) have that scale as their resolution, to the scaling's rounding."""
+    rng = np.random.default_rng(seed)
+    n = 4 * levels * 5
+    counts = np.round((levels - 1) * (0.5 + 0.5 * np.sin(np.linspace(0.0, 12.0, n) + rng.uniform(0, 6))))
+    if np.unique(counts).size < 2:
+        counts[0] = 0.0 if counts[1] else 1.0
+    y = offset + counts * step
+    assert sensor_resolution(y) == pytest.approx(step, rel=1e-6)
+
+
+def test_sensor_resolution_of_continuous_readings_is_none():
+    rng = np.random.default_rng(1)
+    t = np.arange(20_000) * 1e-4
+    y = 5.0 * np.sin(2 * np.pi * t) + 1e-3 * rng.standard_normal(t.size)
+    assert sensor_resolution(y) is None
+    assert sensor_resolution(np.round(y, 4)) is None  # a file's 4 decimals: too many levels to tell
+    assert sensor_resolution(np.r_[0.0, 1.0, 1.5, 3.7].repeat(10)) is None  # no common step
+
+
+class _CountingPIStage:
+    """A P-I stage (9 operators, about 9 um) whose sensor reads in counts of ``step_um``."""
+
+    u_range = (0.0, 100.0)
+
+    def __init__(self, step_um: float, dt: float = 2e-4):
+        self.model = ph.PrandtlIshlinskii(np.arange(0.0, 90.0, 10.0),
+                                          [0.05, 0.02, 0.012, 0.008, 0.006, 0.004, 0.003, 0.002, 0.002])
+        self.dt, self.count = dt, step_um
+        self.reset()
+
+    def reset(self):
+        self._s = self.model.stepper()
+
+    def step(self, u):
+        return self.count * round(self._s.step(min(max(float(u), 0.0), 100.0)) / self.count)
+
+
+def test_a_coarse_sensor_is_named_not_taken_for_clipping():
+    st_ = _CountingPIStage(0.6)
+    u = ph.sinusoid(1.0, 3, 0.0, 100.0, st_.dt)
+    y = np.array([st_.step(v) for v in u])
+    fit = ph.fit_model(u, y, st_.dt, kind="pi")
+    said = " ".join(fit.warnings)
+    assert "reads in steps of 0.6 (16 distinct values" in said
+    assert "clipped" not in said.replace("a clipped sensor nor", "")
+    # a fine sensor: no such sentence
+    fine = ph.fit_model(u, st_.model.simulate(u), st_.dt, kind="pi")
+    assert not any("reads in steps" in w for w in fine.warnings)
+
+
+def test_commissioning_a_coarse_sensor_says_why_there_is_no_feedback_and_floors_the_noise():
+    stage = _CountingPIStage(0.6)
+    with pytest.warns(ph.NoFeedbackWarning, match="never answered half of the .* probe") as rec:
+        ctl = ph.commission(stage)
+    assert ctl.tuning.ki == 0.0
+    assert "coarser than the probe" in str(rec[0].message)
+    assert ctl.describe()["feedback"].startswith("none (tuned to ki = 0: the stage never answered")
+    assert ctl.sensor_resolution_um == pytest.approx(0.6)
+    r = ctl.track(ph.sinusoid(1.0, 3, 2.0, 8.0, stage.dt), feedback=False, learning=False, period=5000)
+    assert r.info["sensor_resolution_um"] == pytest.approx(0.6)
+    assert r.info["noise_floor_um"] == pytest.approx(0.3)  # half a count; the noise alone says ~0
+    assert r.info["noise_floor_percent"] == pytest.approx(5.0)

@@ -209,11 +209,15 @@ def test_trials_the_stage_does_not_answer_show_no_damping():
     stage = Stage("falling after reversal, 40 kHz, 321 Hz at 7 %", FallingAfterReversal(200.0, 3.5834), 2.5e-5,
                   (-200.0, 200.0), tau_amp=1e-4, fn_hz=321.19, zeta=0.0706, noise_um=0.00072, delay_samples=3,
                   seed=2)
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("ignore", ph.ClippingWarning)
+        warnings.simplefilter("always", ph.NoFeedbackWarning)
         ctl = ph.commission(stage)
     for e in ctl.tuning.experiments:  # well damped only where the stage answered
         assert not e["well_damped"] or e["answer_peak"] >= MIN_ANSWER
+    # no feedback is said, and why (no trial answered, the verification run, ...)
+    said = [str(w.message) for w in caught if issubclass(w.category, ph.NoFeedbackWarning)]
+    assert bool(said) == (ctl.tuning.ki == 0), (said, ctl.tuning.ki)
     ref = ph.sinusoid(5.0, 4, -1.2, 1.2, stage.dt)
     ff = ctl.track(ref, feedback=False, learning=False)
     fb = ctl.track(ref, learning=False)

@@ -29,7 +29,7 @@ _LAZY: dict[str, str] = {
     "LoopFigures": "analysis", "loop_figures": "analysis",
     "CommissionedController": "commissioning", "commission": "commissioning",
     "commissioning_excitation": "commissioning",
-    "AmplifierSlewWarning": "commissioning",
+    "AmplifierSlewWarning": "commissioning", "NoFeedbackWarning": "commissioning",
     "NotMonotoneWarning": "identify.monotone", "DeadRangeWarning": "identify.monotone",
     "BoucWenFeedforward": "control", "InversePIFeedforward": "control", "PID": "control",
     "TrackingResult": "control", "UnstableLoopError": "control", "track": "control",
@@ -94,7 +94,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from . import control, data, experiments, export, fleet, identify, modelio, models, plots, signals  # noqa: F401
     from .analysis import LoopFigures, loop_figures  # noqa: F401
     from . import commissioning  # noqa: F401
-    from .commissioning import AmplifierSlewWarning, CommissionedController, commission, commissioning_excitation  # noqa: F401
+    from .commissioning import (AmplifierSlewWarning, CommissionedController, NoFeedbackWarning,  # noqa: F401
+                                commission, commissioning_excitation)
     from .identify.monotone import DeadRangeWarning, NotMonotoneWarning  # noqa: F401
     from .control import (BoucWenFeedforward, InversePIFeedforward, PID, TrackingResult,  # noqa: F401
                           UnstableLoopError, track)

@@ -181,7 +181,7 @@ from .models.base import Compensator, kind_class, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, checked_excitation,
                     default_step_fraction, plant_mode, plant_u_range)
 from .signals import (estimate_period, mode_inverse, noise_e_max, second_order_filter,
-                      sensor_noise_rms, sinusoid, transfer_peak_mode)
+                      sensor_noise_rms, sensor_resolution, sinusoid, transfer_peak_mode)
 
 #: The kinds commissioning chooses from: fast to fit, each with an exact or numerical inverse.
 COMMISSION_KINDS = ("prandtl-ishlinskii", "rate-dependent", "asymmetric-pi", "preisach", "bouc-wen-hysteresis",
@@ -648,7 +648,8 @@ class CommissionedController:
     def noise_floor(self, result: TrackingResult) -> dict[str, float] | None:
         """What the sensor's noise alone would make of ``result``'s e_max: ``sensor_noise_um``
         and, over the run's scored samples, the e_max that noise reaches with probability one half
-        (:func:`~piezohyst.signals.noise_e_max`) in µm and as % of the reference's span. An e_max
+        (:func:`~piezohyst.signals.noise_e_max`) in µm and as % of the reference's span; for a
+        sensor that reads in counts (``sensor_resolution_um``) at least half a count. An e_max
         near it is as small as this sensor can show; below it, the error is noise."""
         if not isinstance(result, TrackingResult):
             raise TypeError(f"noise_floor takes the TrackingResult of a track() run, got {type(result).__name__}")
@@ -656,9 +657,21 @@ class CommissionedController:
         if sigma is None or result.metrics.samples < 1:
             return None
         floor = noise_e_max(sigma, result.metrics.samples)
+        step = self.sensor_resolution_um
+        if step is not None:  # a sensor that reads in counts shows no error finer than half of one
+            floor = max(floor, 0.5 * step)
         span = result.metrics.span
-        return {"sensor_noise_um": sigma, "noise_floor_um": floor,
-                "noise_floor_percent": 100.0 * floor / span if span > 0 else math.nan}
+        return {"sensor_noise_um": sigma, **({"sensor_resolution_um": step} if step is not None else {}),
+                "noise_floor_um": floor, "noise_floor_percent": 100.0 * floor / span if span > 0 else math.nan}
+
+    @cached_property
+    def sensor_resolution_um(self) -> float | None:
+        """The step (µm) of a sensor that reads in counts, from the identification run's readings
+        (:func:`~piezohyst.signals.sensor_resolution`); None where they show no grid. Half of it is
+        a floor under any tracking run's e_max (:meth:`noise_floor`): the noise, measured from
+        what the model leaves, does not see a count that holds still."""
+        ds = getattr(self, "identification", None)
+        return None if ds is None or len(ds) < 2 else sensor_resolution(ds.y)
 
     @property
     def max_jump(self) -> float | None:
@@ -697,7 +710,8 @@ class CommissionedController:
             "fit_rmse_um": self.fit.rmse, "holdout_rmse_um": hold.get("rmse"),
             "holdout_percent_of_span": hold.get("percent_of_span"), "delay_samples": self.delay,
             "mode": self.mode,
-            "feedback": (f"integral, ki = {self.tuning.ki:.4g} 1/s" if self.tuning else
+            "feedback": (f"integral, ki = {self.tuning.ki:.4g} 1/s" if self.tuning and self.tuning.ki > 0 else
+                         f"none (tuned to ki = 0: {_why_no_feedback(self.tuning)})" if self.tuning else
                          NO_LOOP if self.mode == "buffered" else "none (not tuned)"),
             "ki": self.tuning.ki if self.tuning else None,
             "ki_ultimate": self.tuning.ki_ultimate if self.tuning else None,
@@ -727,6 +741,11 @@ class CommissionedController:
                                            rise_s=self.CONDITIONING_LEG_S)
         counts = tguard.counts()
         self._verify_feedback()
+        if self.tuning is not None and not self.tuning.ki > 0:
+            warnings.warn(f"commissioning {type(self.plant).__name__}: no integral feedback (ki = 0): "
+                          f"{_why_no_feedback(self.tuning)}; the controller tracks with its feedforward alone "
+                          "(and learning, where on), and nothing takes out what the model misses, drift included",
+                          NoFeedbackWarning, stacklevel=2)
         return counts
 
     def verification_reference(self) -> tuple[FloatArray, int]:
@@ -1387,6 +1406,36 @@ def _run_loop_compiled(ff_args: Any, plant: Any, guard: GuardedPlant, ff: Any, p
     limits_back(ff, ff_lim_state)
     pid_back(pid, pid_state)
     return True
+
+
+class NoFeedbackWarning(UserWarning):
+    """Commissioning tuned no feedback (``ki = 0``): no gain tried was well damped on the plant, or
+    the feedback tracked worse than the feedforward alone (:func:`_why_no_feedback` says which)."""
+
+
+def _why_no_feedback(tu: TuningResult) -> str:
+    """Why the tuning ``tu`` ended at ``ki = 0``, from its experiments and verification runs, in
+    a clause (what a user can change: the sensor, the probe, the plant's limits)."""
+    if tu.verification and not any(c["ki"] > 0 and _feedback_helps(c) for c in tu.verification):
+        first = tu.verification[0]
+        return (f"on the verification run the feedback tracked worse than the feedforward alone at every gain "
+                f"from {first['ki']:.4g} 1/s down (RMS {first['ratio']:.2f}x, e_max {first['e_max_ratio']:.2f}x)")
+    ex = list(tu.experiments)
+    if not ex:
+        return "no bounded experiment was run"
+    gains = f"{min(e['ki'] for e in ex):.4g}..{max(e['ki'] for e in ex):.4g} 1/s"
+    if all(e["aborted"] for e in ex):
+        return (f"every bounded experiment ({len(ex)}, gains {gains}) was stopped: the error or the command left "
+                "the bounds the safe layer allows at a hold (a stage that keeps moving after the command reverses, "
+                "a model far off at the hold's level)")
+    if all(e["oscillation_grows"] for e in ex if not e["aborted"]):
+        return f"an oscillation grew in every experiment that ran (gains {gains}): a resonance the model leaves out"
+    if not any(e["answered"] for e in ex if not e["aborted"]):
+        probe = float(ex[0]["probe_V"])
+        return (f"the stage never answered half of the {probe:.3g} V probe within an experiment (gains {gains}): a "
+                "sensor coarser than the probe's effect, a dead band at the hold's level, or a stage too slow for "
+                "the experiments' length")
+    return f"no experiment was well damped (gains {gains}; overshoot limit exceeded or stopped)"
 
 
 class AmplifierSlewWarning(UserWarning):

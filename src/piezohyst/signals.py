@@ -188,6 +188,43 @@ def sensor_noise_rms(y: Any) -> float:
     return float(np.sqrt(np.mean(d2 * d2))) / _SECOND_DIFFERENCE_GAIN
 
 
+#: :func:`sensor_resolution` looks for a count only where each distinct reading recurs, on average,
+#: at least this often (a continuous reading, noise included, repeats almost no value).
+RESOLUTION_MIN_REPEATS = 4
+
+
+def sensor_resolution(y: Any) -> float | None:
+    """The step of a sensor that reads in counts: the spacing of the grid that every distinct
+    value of ``y`` lies on, or None where the values do not lie on one (or recur too seldom,
+    :data:`RESOLUTION_MIN_REPEATS`, for a grid to be told from a continuous reading).
+
+    Every reading of a converter is a whole number of counts (times a scale, plus an offset): the
+    differences between the sorted distinct values are whole multiples of the smallest, within
+    the rounding of the scaling. A step that is a large share of the span (a 12-bit converter of
+    which the stage uses a sliver, a coarse encoder) bounds what any model can fit (an RMS of
+    ``step / sqrt(12)``) and what a tracking run can show (``step / 2``); it also holds the
+    reading still at a reversal and at the ends, where a finer sensor would show motion.
+
+    >>> sensor_resolution(np.round(np.sin(np.linspace(0.0, 20.0, 4000)) * 8.0) / 8.0 * 3.0)
+    0.375
+    >>> sensor_resolution(np.sin(np.linspace(0.0, 20.0, 4000))) is None
+    True
+    """
+    x = as_signal("y", y, min_length=2)
+    x = x[np.isfinite(x)]
+    levels = np.unique(x)
+    if levels.size < 2 or levels.size * RESOLUTION_MIN_REPEATS > x.size:
+        return None
+    gaps = np.diff(levels)
+    step = float(gaps.min())
+    # the scaling's rounding: a few units in the last place of the values, relative to the step
+    tol = 1e-6 * step + 16.0 * np.finfo(np.float64).eps * float(np.max(np.abs(levels)))
+    counts = np.round(gaps / step)
+    if not np.all(np.abs(gaps - counts * step) <= tol * np.maximum(counts, 1.0)):
+        return None
+    return float((levels[-1] - levels[0]) / float(counts.sum()))  # the mean step: rounding averaged out
+
+
 def noise_e_max(sigma: float, samples: int) -> float:
     """The largest magnitude that ``samples`` independent samples of normal noise of RMS ``sigma``
     reach with probability one half (the median of their maximum): the floor that sensor noise

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from .._numba import njit
 from .._validation import FloatArray
+from ..signals import sensor_resolution
 
 IntArray = NDArray[np.int64]
 
@@ -257,12 +258,31 @@ def clipped_output(u: FloatArray, y: FloatArray) -> list[tuple[str, float, int, 
     return out
 
 
+#: A sensor whose step (:func:`~piezohyst.signals.sensor_resolution`) is at least this share of
+#: the output's span (200 counts or fewer over it) is said to be coarse (:func:`range_warnings`).
+COARSE_RESOLUTION_SHARE = 0.005
+
+
 def range_warnings(u: FloatArray, y: FloatArray) -> list[str]:
-    """What a record shows of its range that a model fitted over all of it cannot use: an end where
-    the stage is not monotone (:func:`monotone_range`) and one where it does not move
-    (:func:`dead_range`), one sentence each (``u`` and ``y`` paired, a delay taken out)."""
+    """What a record shows of its range that a model fitted over all of it cannot use: a sensor
+    that reads in coarse steps (:data:`COARSE_RESOLUTION_SHARE`; then the clipping check, which
+    such a sensor's held readings would fool, is not made), an output held at an end
+    (:func:`clipped_output`), an end where the stage is not monotone (:func:`monotone_range`) and
+    one where it does not move (:func:`dead_range`), one sentence each (``u`` and ``y`` paired, a
+    delay taken out)."""
     out = []
-    for end, value, k, lo_u, hi_u in clipped_output(u, y):
+    step = sensor_resolution(y)
+    span = float(np.ptp(y))
+    coarse = step is not None and span > 0 and step >= COARSE_RESOLUTION_SHARE * span
+    if coarse:
+        assert step is not None
+        out.append(f"the output reads in steps of {step:.4g} ({int(round(span / step)) + 1} distinct values over its "
+                   f"span of {span:.4g}: {100.0 * step / span:.2g} % of it): a sensor or converter coarser than the "
+                   f"motion to be modelled. No model fits it better than about {step / math.sqrt(12.0):.3g} RMS, a "
+                   f"tracking run shows its error no finer than {step / 2.0:.3g}, and the reading stands still at "
+                   f"reversals and at the ends while the stage moves within a step (so neither a clipped sensor nor "
+                   f"a loop flat after reversals can be told from it); measure with a finer resolution")
+    for end, value, k, lo_u, hi_u in ([] if coarse else clipped_output(u, y)):
         out.append(f"the output stays at {value:.6g} ({'its largest' if end == 'top' else 'its smallest'} value) for "
                    f"{k} samples ({100.0 * k / len(y):.1f} %) while the input moves over {lo_u:.4g}..{hi_u:.4g} V: "
                    f"a sensor or converter clipped at the end of its range? Those samples say nothing of the "
