@@ -471,3 +471,52 @@ def test_c_export_refuses_a_file_name_and_checks_gains_without_a_range(tmp_path)
     with pytest.raises(ValueError, match="diverge") as info:
         generate_c(model, u_range=(0.0, 100.0), kp=1e6)
     assert "sample period" not in str(info.value)  # none was given: it said "0 s"
+
+
+def test_the_header_and_the_source_are_published_together(tmp_path, monkeypatch):
+    """Found by a helper: an interrupt (or a full disk) between the two files left compensator.h
+    alone, a rerun then refused; with force, a new header beside the old source, which compiled.
+    Now both are written first and moved into place together: an interrupt at the second move
+    leaves the old pair (or none), and a full disk writes neither."""
+    import errno
+
+    import piezohyst._fileio as fio
+    from piezohyst.export.c import export_c
+
+    out = tmp_path / "fw"
+    real = fio._publish_file
+    calls = []
+
+    def interrupted_at_the_second(tmp, p, force):
+        calls.append(p.name)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        real(tmp, p, force)
+
+    monkeypatch.setattr(fio, "_publish_file", interrupted_at_the_second)
+    with pytest.raises(KeyboardInterrupt):
+        export_c(_pi(), out)
+    assert calls == ["compensator.h", "compensator.c"] and sorted(p.name for p in out.iterdir()) == []
+
+    monkeypatch.setattr(fio, "_publish_file", real)
+    export_c(_pi(), out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    calls.clear()
+    monkeypatch.setattr(fio, "_publish_file", interrupted_at_the_second)
+    other = ph.PrandtlIshlinskii(ph.equal_thresholds(5, 80.0), [0.03, 0.02, 0.01, 0.01, 0.005])
+    with pytest.raises(KeyboardInterrupt):
+        export_c(other, out, force=True)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # the old pair, whole, nothing else
+
+    monkeypatch.setattr(fio, "_publish_file", real)
+    real_write = fio.Path.write_text
+
+    def full_at_the_source(self, text, *a, **k):
+        if ".compensator.c." in self.name:
+            raise OSError(errno.ENOSPC, "No space left on device", str(self))
+        return real_write(self, text, *a, **k)
+
+    monkeypatch.setattr(fio.Path, "write_text", full_at_the_source)
+    with pytest.raises(OSError, match=r"cannot write .*fw2/compensator.c: No space left"):
+        export_c(_pi(), tmp_path / "fw2")
+    assert sorted(p.name for p in (tmp_path / "fw2").iterdir()) == []

@@ -519,6 +519,48 @@ def test_output_folder_onto_a_mount_point(tmp_path, monkeypatch):
             OutputFolder(out, ["a.txt"], force=True).check()
 
 
+def test_output_folder_through_a_symlink_and_errors_naming_the_users_files(tmp_path):
+    """Found by a helper: ``--out`` a link to an empty results folder was refused after all the
+    work ("received files while this run worked": the rename onto the link failed); a full disk
+    named the hidden temporary folder ("cannot write .../.rep.tmp-6viv.../fig3.png"); and a
+    245-character name failed after its fit, its temporary name over the 255-byte limit."""
+    import errno
+
+    from piezohyst._fileio import OutputFolder, atomic_write_text
+
+    target = tmp_path / "results"
+    target.mkdir()
+    link = tmp_path / "link"
+    link.symlink_to(target)
+    with OutputFolder(link, ["a.txt"]) as d:
+        (d / "a.txt").write_text("1")
+    assert link.is_symlink() and sorted(p.name for p in target.iterdir()) == ["a.txt", MANIFEST]
+    with pytest.raises(OverwriteRefused):
+        OutputFolder(link, ["a.txt"]).check()
+
+    out = tmp_path / "set"
+    with pytest.raises(OutputError) as err:
+        with OutputFolder(out, ["fig.png", "r.csv"]) as d:
+            atomic_write_text(d / "r.csv", "x")  # an error of the project's own writer ...
+            raise OSError(errno.ENOSPC, "No space left on device", str(d / "fig.png"))  # ... and of another's
+    assert str(err.value) == f"cannot write {out / 'fig.png'}: No space left on device"
+    with pytest.raises(OutputError) as err:
+        with OutputFolder(out, ["r.csv"]) as d:
+            def full(t):
+                raise OSError(errno.ENOSPC, "No space left on device", str(t))
+            from piezohyst._fileio import atomic_write
+            atomic_write(d / "r.csv", full)
+    assert str(err.value) == f"cannot write {out / 'r.csv'}: No space left on device"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "results"]  # no temporary left
+
+    long_name = "m" * 245 + ".json"  # 250 bytes: a legal name
+    assert atomic_write_text(tmp_path / long_name, "{}").read_text() == "{}"
+    with OutputFolder(tmp_path / ("r" * 250), ["a.txt"]) as d:
+        (d / "a.txt").write_text("1")
+    assert (tmp_path / ("r" * 250) / "a.txt").read_text() == "1"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["link", "results", long_name, "r" * 250])
+
+
 def test_output_folder_checks_paths(tmp_path):
     (tmp_path / "f").write_text("x")
     with pytest.raises(OutputError, match="is a file, not a folder"):

@@ -133,9 +133,24 @@ def _chmod_ordinary(path: Path, folder: bool = False) -> None:
 @contextlib.contextmanager
 def deferred_signals() -> Iterator[None]:
     """Hold SIGINT/SIGTERM/SIGHUP during a few system calls that must not be split (publishing an
-    output and removing its temporary name); they are delivered right after."""
+    output and removing its temporary name); they are delivered right after.
+
+    Blocking them in this thread is not enough: the kernel hands a process's signal to any thread
+    that does not block it (numba's, BLAS's, Dask's), and Python then runs its handler in the main
+    thread, inside the block (found by a helper: 9 of 400 interrupts left a temporary file behind
+    with threads running). So the main thread also swaps each held signal's handler for one that
+    notes it, and after the block restores the handlers and raises what was noted. Elsewhere than
+    in the main thread only the blocking is possible (handlers belong to the main thread)."""
     sigs = {signal.SIGINT, signal.SIGTERM} | ({signal.SIGHUP} if hasattr(signal, "SIGHUP") else set())
-    can = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+    main = threading.current_thread() is threading.main_thread()
+    can = hasattr(signal, "pthread_sigmask") and main
+    noted: list[int] = []
+    swapped: dict[signal.Signals, Any] = {}
+    if main:
+        for sig in sigs:
+            h = signal.getsignal(sig)
+            if h is not None and h is not signal.SIG_IGN:  # (None: a handler set outside Python)
+                swapped[sig] = signal.signal(sig, lambda signum, frame: noted.append(signum))
     if can:
         old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
     try:
@@ -143,6 +158,10 @@ def deferred_signals() -> Iterator[None]:
     finally:
         if can:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for sig, handler in swapped.items():
+            signal.signal(sig, handler)
+        for n in dict.fromkeys(noted):
+            signal.raise_signal(n)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -201,6 +220,21 @@ def check_output_file(path: str | os.PathLike[str], force: bool) -> Path:
 check_writable = check_output_file
 
 
+#: The most bytes of an output's name that its temporary names beside it repeat: a name may be up
+#: to 255 bytes, and ``.NAME.XXXXXXXX.tmp`` must fit too (a 245-character model name was refused
+#: after its fit, naming the temporary file: found by a helper).
+TEMP_NAME_BYTES = 120
+
+
+def _short(name: str) -> str:
+    """``name`` for a temporary name: whole, or its first characters and a hash of the rest."""
+    raw = name.encode("utf-8", "surrogateescape")
+    if len(raw) <= TEMP_NAME_BYTES:
+        return name
+    head = raw[:TEMP_NAME_BYTES - 9].decode("utf-8", "ignore")  # (a character cut in two is left out)
+    return f"{head}~{hashlib.sha256(raw).hexdigest()[:8]}"
+
+
 def _remove(path: Path) -> None:
     try:
         if path.is_dir() and not path.is_symlink():
@@ -252,7 +286,7 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object], 
     tmp: Path | None = None
     try:
         with deferred_signals():  # a signal now would leave the temporary file unnamed
-            fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+            fd, name = tempfile.mkstemp(prefix=f".{_short(p.name)}.", suffix=".tmp", dir=p.parent)
             os.close(fd)
             tmp = Path(name)
         try:
@@ -275,6 +309,66 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object], 
 def atomic_write_text(path: str | os.PathLike[str], text: str, *, force: bool = False) -> Path:
     """Write ``text`` (UTF-8) atomically."""
     return atomic_write(path, lambda t: t.write_text(text, encoding="utf-8"), force=force)
+
+
+def atomic_write_texts(texts: dict[Path, str], *, force: bool = False) -> list[Path]:
+    """Write several files (UTF-8 text) that belong together, as :func:`atomic_write` writes one,
+    and publish them together: every file is written to a temporary name first (a full disk or an
+    error leaves none of them), then all are moved into place in one block that signals wait for;
+    if one of them cannot be (it appeared meanwhile), the ones moved before it are put back. So a
+    C header and its source are never left as one without the other, or as halves of two runs
+    (found by a helper: an interrupt between them left compensator.h alone, and with force a new
+    header beside the old source, which compiled)."""
+    paths = [check_output_file(p, force) for p in texts]
+    tmps: list[Path] = []
+    try:
+        for p, text in zip(paths, texts.values()):
+            p.parent.mkdir(parents=True, exist_ok=True)
+            with deferred_signals():
+                fd, name = tempfile.mkstemp(prefix=f".{_short(p.name)}.", suffix=".tmp", dir=p.parent)
+                os.close(fd)
+                tmps.append(Path(name))
+            try:
+                tmps[-1].write_text(text, encoding="utf-8")
+            except OSError as exc:
+                raise OutputError(f"cannot write {p}: {exc.strerror or exc}") from exc
+            _chmod_ordinary(tmps[-1])
+        moved: list[tuple[Path, Path | None]] = []  # (path, the name its previous content was moved to)
+        with deferred_signals():
+            try:
+                for tmp, p in zip(tmps, paths):
+                    backup = None
+                    if force and os.path.lexists(p) and not p.is_dir():
+                        fd, name = tempfile.mkstemp(prefix=f".{_short(p.name)}.", suffix=".old", dir=p.parent)
+                        os.close(fd)
+                        backup = Path(name)
+                        try:
+                            os.replace(p, backup)
+                        except BaseException:
+                            backup.unlink(missing_ok=True)
+                            raise
+                    try:
+                        _publish_file(tmp, p, force)
+                    except BaseException:
+                        if backup is not None:
+                            os.replace(backup, p)
+                        raise
+                    moved.append((p, backup))
+            except BaseException:
+                for q, backup in reversed(moved):  # as it was: the previous files, or none
+                    if backup is not None:
+                        os.replace(backup, q)
+                    else:
+                        q.unlink(missing_ok=True)
+                raise
+            for _, backup in moved:
+                if backup is not None:
+                    backup.unlink(missing_ok=True)
+    finally:
+        with deferred_signals():
+            for tmp in tmps:
+                tmp.unlink(missing_ok=True)
+    return paths
 
 
 # ------------------------------------------------------------------------------------------------
@@ -400,6 +494,11 @@ class OutputFolder:
         the manifest last), from a temporary folder inside it (the same file system)."""
         if not self.path.is_dir():
             return False
+        if self.path.is_symlink():
+            # a link to a results folder elsewhere: a rename onto the link would replace the link
+            # (or fail, "not a directory", reported as files that appeared: found by a helper); the
+            # files go into the folder it names, as into a mount point
+            return True
         return os.path.ismount(self.path) or str(self.path.resolve()) in _mount_points()
 
     def __enter__(self) -> Path:
@@ -408,7 +507,7 @@ class OutputFolder:
         inside = self._is_mount_point()
         try:
             with deferred_signals():  # a signal now would leave the temporary folder unnamed
-                self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.tmp-",
+                self._tmp = Path(tempfile.mkdtemp(prefix=f".{_short(self.path.name)}.tmp-",
                                                   dir=self.path if inside else self.path.parent))
         except BaseException:
             if self._tmp is not None:
@@ -425,9 +524,28 @@ class OutputFolder:
         try:
             if exc_type is None:
                 self._publish(tmp)
+            elif isinstance(exc, OSError):
+                # name the file the user will look for, not the hidden temporary folder
+                said = str(exc) if isinstance(exc, OutputError) else None
+                if said is not None and str(tmp) in said:
+                    raise OutputError(said.replace(str(tmp), str(self.path))) from exc
+                named = self._users_name(tmp, exc) if said is None else None
+                if named is not None:
+                    raise OutputError(f"cannot write {named}: {exc.strerror or exc}") from exc
         finally:
             with deferred_signals():
                 _remove(tmp)
+
+    def _users_name(self, tmp: Path, exc: OSError) -> Path | None:
+        """The path in the user's folder of the file ``exc`` names inside ``tmp``, or None."""
+        for name in (exc.filename, exc.filename2):
+            if name is None:
+                continue
+            try:
+                return self.path / Path(os.fsdecode(name)).relative_to(tmp)
+            except ValueError:
+                continue
+        return None
 
     def _write_manifest(self, tmp: Path) -> None:
         files = {}
@@ -497,7 +615,7 @@ class OutputFolder:
                     raise OutputError(f"{p} received other files ({_few(late)}) while this run worked; "
                                       f"not replacing it")
                 return
-            old = Path(tempfile.mkdtemp(prefix=f".{p.name}.old-", dir=p.parent))
+            old = Path(tempfile.mkdtemp(prefix=f".{_short(p.name)}.old-", dir=p.parent))
             os.rmdir(old)
             os.rename(p, old)
             try:

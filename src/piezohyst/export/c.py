@@ -388,11 +388,12 @@ double compensator_step_fb(double desired_um, double measured_um)
 
 def export_c(model: Any, directory: Any, *, force: bool = False, **options: Any) -> dict[str, Any]:
     """Write ``compensator.h`` and ``compensator.c`` into ``directory`` (created if needed;
-    existing files are not overwritten without ``force``; each file is written atomically).
+    existing files are not overwritten without ``force``; the two are written atomically
+    together: never one without the other, or halves of two runs).
     ``options`` as :func:`generate_c`. Returns the paths and what was generated."""
     from pathlib import Path
 
-    from .._fileio import atomic_write_text, check_writable
+    from .._fileio import atomic_write_texts, check_writable
 
     out = Path(directory)
     if out.exists() and not out.is_dir():
@@ -405,6 +406,5 @@ def export_c(model: Any, directory: Any, *, force: bool = False, **options: Any)
     for p in (h_path, c_path):
         check_writable(p, force)
     gen = generate_c(model, **options)
-    atomic_write_text(h_path, gen.header, force=force)
-    atomic_write_text(c_path, gen.source, force=force)
+    atomic_write_texts({h_path: gen.header, c_path: gen.source}, force=force)
     return {"header": str(h_path), "source": str(c_path), **gen.info}
