@@ -253,14 +253,34 @@ def test_parameters_at_the_float_limit_load_quietly_and_claim_no_slope(big):
         m.compensator()
 
 
-def test_close_knots_do_not_multiply_the_sub_steps():
-    """Sub-steps follow the knots' mean interval, so a model file with two nearly coincident knots
-    runs as fast as one with even knots (evenly spaced knots, as the fit makes: the same step)."""
-    from piezohyst.models.duhem import SUBSTEPS_PER_INTERVAL, substep
+def test_a_step_is_exact_and_continuous_in_where_it_ends():
+    """The move from v0 to v1 is integrated in closed form between the knots it crosses: equal to
+    the exponential relaxation where F and G are constant, the same in one move as in two, and
+    continuous in v1 (the sub-steps it replaced changed in number as |v1 - v0| crossed multiples of
+    their length, a jump of up to 3e-3 um the inverse's bisection took for a crossing)."""
+    from piezohyst.models.duhem import duhem_advance
 
-    assert substep(np.array([0.0, 1e-9, 100.0])) == 100.0 / (2 * SUBSTEPS_PER_INTERVAL)
-    even = np.linspace(0.0, 100.0, 9)
-    assert substep(even) == pytest.approx(float(np.min(np.diff(even))) / SUBSTEPS_PER_INTERVAL, rel=1e-12)
+    flat = ph.GeneralizedDuhem([0.0, 100.0], f=[0.002, 0.002], g=[0.01, 0.01], lam=0.04)
+    for v0, v1, y0 in ((10.0, 73.3, 0.2), (90.0, 1e-3, -0.1), (-5.0, 130.0, 0.0)):
+        phi = 0.002 + np.sign(v1 - v0) * 0.01
+        exact = phi / 0.04 + (y0 - phi / 0.04) * np.exp(-0.04 * abs(v1 - v0))
+        assert duhem_advance(v0, y0, v1, flat.knots, flat.f, flat.g, 0.04) == pytest.approx(exact, rel=1e-13)
+    m = ph.GeneralizedDuhem(np.linspace(0.0, 100.0, 9), f=0.3 * np.tanh(np.linspace(0.0, 100.0, 9) / 50.0),
+                            g=np.full(9, 0.05), lam=0.5)
+    args = (m.knots, m.f, m.g, m.lam)
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        v0, v2 = rng.uniform(-20.0, 120.0, 2)
+        v1, y0 = v0 + rng.uniform() * (v2 - v0), rng.normal(0.0, 0.3)
+        one = duhem_advance(v0, y0, v2, *args)
+        assert duhem_advance(v1, duhem_advance(v0, y0, v1, *args), v2, *args) == pytest.approx(one, abs=1e-14)
+    slope = float(np.abs(m.f).max() + np.abs(m.g).max() + m.lam * 0.3)
+    dv = 1e-7
+    for v0 in (1.234, 99.23):
+        for centre in (v0 + 3.125, v0 - 3.125, v0 + 6.25, 12.5, 87.5, 100.0, 0.0):
+            ends = centre + np.arange(-500, 501) * dv
+            y = np.array([duhem_advance(v0, 0.3, e, *args) for e in ends])
+            assert np.abs(np.diff(y)).max() <= 1.01 * slope * dv
 
 
 @pytest.mark.parametrize("v_range", [(-(2.0**63), 100.0), (0.0, 2.0**63), (-1e8, 100.0)])

@@ -13,13 +13,20 @@ with constant ``F`` and ``G`` (``gamma = 0``); Coleman and Hodgdon's model of fe
 piezoelectric hysteresis is the member with ``F = lam f`` (``f`` the anhysteretic curve) and
 ``G = g``.
 
-``F`` and ``G`` are piecewise linear over the ``knots`` (held constant beyond them). Over an
-increment ``h`` of the input, cut into sub-steps no longer than a quarter of the mean knot
-interval, each sub-step freezes ``F`` and ``G`` at its midpoint and is then solved exactly::
+``F`` and ``G`` are piecewise linear over the ``knots`` (held constant beyond them), so along a
+monotone move of the input, in the travel ``x = |v - v0|`` and with ``s`` its direction, the model
+is ``dy/dx = -lam y + phi(x)`` with the forcing ``phi = F(v) + s G(v)`` linear between the knots
+the move crosses. Each such segment, of length ``l``, is solved in closed form::
 
-    y <- a y + c (F(v_mid) + sign(h) G(v_mid)),   a = exp(-lam |h|),   c = (1 - a) / lam
+    y <- a y + l (wa phi_a + wb phi_b),   a = exp(-z),   z = lam l,
+    wa = (1 - (1 + z) exp(-z)) / z^2,     wb = (z - 1 + exp(-z)) / z^2
 
-so the output is *linear in the values of F and G at the knots* once ``lam`` is fixed: for a
+(``phi_a``, ``phi_b`` the forcing at the segment's start and end; both weights tend to 1/2 as
+``z -> 0`` and are summed from their series there, where the closed forms cancel). The step is
+exact, the same in one move as in several, and continuous in where the move ends (it replaced
+sub-steps that froze ``F`` and ``G`` at their midpoints, whose number jumped as the move's length
+crossed multiples of theirs: a jump in the output that the inverse's bisection took for a
+crossing). The output is *linear in the values of F and G at the knots* once ``lam`` is fixed: for a
 given ``lam`` the best ``F`` and ``G`` are one linear least-squares problem
 (:func:`duhem_columns`, :mod:`piezohyst.identify.linear`), and ``lam`` is chosen on held-out data
 (:func:`piezohyst.identify.fit_model`).
@@ -54,8 +61,6 @@ from .base import InverseCompensator, c_bracketed_solve, check_dt, register_kind
 BISECTION_STEPS = 60
 #: Nodes over the operating range on which :func:`reachable_band` follows the states.
 REACH_NODES = 2000
-#: Sub-steps per mean knot interval (at most): ``F`` and ``G`` are frozen over each.
-SUBSTEPS_PER_INTERVAL = 4
 
 
 @njit
@@ -87,41 +92,145 @@ def _interp(x: float, knots: FloatArray, vals: FloatArray) -> float:  # pragma: 
     return vals[lo] + w * (vals[hi] - vals[lo])
 
 
+#: Below this ``lam`` times a segment's length, :func:`_weights` sums series (the closed forms
+#: cancel): their terms' coefficients, ``(k+1) / (k+2)!`` and ``1 / (k+2)!`` for ``(-z)^k``, as
+#: many as are exact to rounding there.
+SERIES_BELOW = 0.1
+_WA = tuple((k + 1.0) / math.factorial(k + 2) for k in range(10))
+_WB = tuple(1.0 / math.factorial(k + 2) for k in range(10))
+
+
+@njit
+def _weights(z: float) -> tuple[float, float, float]:  # pragma: no cover - compiled
+    """``(a, wa, wb)`` of a segment with ``z = lam l``: ``a = exp(-z)``,
+    ``wa = (1 - (1 + z) exp(-z)) / z^2`` and ``wb = (z - 1 + exp(-z)) / z^2`` (module docstring):
+    by Horner from their series below :data:`SERIES_BELOW`, else from
+    ``e1 = -expm1(-z) / z = wa + wb`` and ``wb = (1 - e1) / z``."""
+    a = math.exp(-z)
+    if z < SERIES_BELOW:
+        wa = 0.0
+        wb = 0.0
+        for k in range(len(_WA) - 1, -1, -1):
+            wa = _WA[k] - z * wa
+            wb = _WB[k] - z * wb
+        return a, wa, wb
+    e1 = -math.expm1(-z) / z
+    wb = (1.0 - e1) / z
+    return a, e1 - wb, wb
+
+
+@njit
+def _first_above(x: float, knots: FloatArray) -> int:  # pragma: no cover - compiled
+    """The index of the first knot above ``x`` (the number of knots at or below it)."""
+    lo = 0
+    hi = knots.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if knots[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit
+def _forcing(x: float, i: int, s: float, knots: FloatArray, f: FloatArray,
+             g: FloatArray) -> float:  # pragma: no cover - compiled
+    """``F(x) + s G(x)``, ``i`` the number of knots at or below ``x`` (constant beyond the knots,
+    as :func:`_interp`)."""
+    k_n = knots.shape[0]
+    if i == 0:
+        return f[0] + s * g[0]
+    if i == k_n:
+        return f[k_n - 1] + s * g[k_n - 1]
+    w = (x - knots[i - 1]) / (knots[i] - knots[i - 1])
+    return (f[i - 1] + w * (f[i] - f[i - 1])) + s * (g[i - 1] + w * (g[i] - g[i - 1]))
+
+
 @njit
 def duhem_advance(v0: float, y0: float, v1: float, knots: FloatArray, f: FloatArray, g: FloatArray,
-                  lam: float, hmax: float) -> float:  # pragma: no cover - compiled
-    """``y`` after the input moves from ``v0`` to ``v1`` from the state ``y0`` (module docstring)."""
-    d = v1 - v0
-    if d == 0.0:
+                  lam: float) -> float:  # pragma: no cover - compiled
+    """``y`` after the input moves from ``v0`` to ``v1`` from the state ``y0``: exact, segment by
+    segment between the knots it crosses (module docstring)."""
+    if v1 == v0:
         return y0
-    n = int(abs(d) / hmax) + 1
-    h = d / n
-    a = math.exp(-lam * abs(h))
-    c = -math.expm1(-lam * abs(h)) / lam
-    s = 1.0 if h > 0.0 else -1.0
+    s = 1.0 if v1 > v0 else -1.0
+    i0 = _first_above(v0, knots)
+    i1 = _first_above(v1, knots)
     y = y0
-    for i in range(n):
-        vm = v0 + (i + 0.5) * h
-        y = a * y + c * (_interp(vm, knots, f) + s * _interp(vm, knots, g))
-    return y
+    va = v0
+    pa = _forcing(v0, i0, s, knots, f, g)
+    if v1 > v0:
+        for j in range(i0, i1):  # the knots in (v0, v1]; v1 itself ends the last segment below
+            if knots[j] == v1:
+                break
+            pb = f[j] + g[j]
+            ln = knots[j] - va
+            a, wa, wb = _weights(lam * ln)
+            y = a * y + ln * (wa * pa + wb * pb)
+            va = knots[j]
+            pa = pb
+        ln = v1 - va
+    else:
+        for j in range(i0 - 1, i1 - 1, -1):  # the knots in (v1, v0]; v0 itself starts no segment
+            if knots[j] == v0:
+                continue
+            pb = f[j] - g[j]
+            ln = va - knots[j]
+            a, wa, wb = _weights(lam * ln)
+            y = a * y + ln * (wa * pa + wb * pb)
+            va = knots[j]
+            pa = pb
+        ln = va - v1
+    a, wa, wb = _weights(lam * ln)
+    return a * y + ln * (wa * pa + wb * _forcing(v1, i1, s, knots, f, g))
 
 
 @njit
-def duhem_simulate(u: FloatArray, knots: FloatArray, f: FloatArray, g: FloatArray, lam: float,
-                   hmax: float) -> FloatArray:  # pragma: no cover - compiled
+def duhem_simulate(u: FloatArray, knots: FloatArray, f: FloatArray, g: FloatArray,
+                   lam: float) -> FloatArray:  # pragma: no cover - compiled
     """``y`` (without the offset) for the input ``u`` from rest (``v = 0``, ``y = 0``)."""
     out = np.empty(u.shape[0])
     v = 0.0
     y = 0.0
     for k in range(u.shape[0]):
-        y = duhem_advance(v, y, u[k], knots, f, g, lam, hmax)
+        y = duhem_advance(v, y, u[k], knots, f, g, lam)
         v = u[k]
         out[k] = y
     return out
 
 
 @njit
-def duhem_columns_into(u: FloatArray, knots: FloatArray, lam: float, hmax: float, stride: int,
+def _add_hats(state: FloatArray, x: float, knots: FloatArray, cg: float,
+              cf: float) -> None:  # pragma: no cover - compiled
+    """Adds ``cg`` times the hat functions at ``x`` to the ``G`` columns of ``state`` and ``cf``
+    times them to its ``F`` columns (two neighbours, or the end one beyond the knots)."""
+    k_n = knots.shape[0]
+    lo, hi, w = _segment(x, knots)
+    if lo == hi:
+        state[lo] += cg
+        state[k_n + lo] += cf
+    else:
+        state[lo] += cg * (1.0 - w)
+        state[hi] += cg * w
+        state[k_n + lo] += cf * (1.0 - w)
+        state[k_n + hi] += cf * w
+
+
+@njit
+def _columns_segment(state: FloatArray, va: float, vb: float, ln: float, s: float, knots: FloatArray,
+                     lam: float) -> None:  # pragma: no cover - compiled
+    """One segment of :func:`duhem_advance` (from ``va`` to ``vb``, ``ln`` long, direction ``s``)
+    on the columns of :func:`duhem_columns_into`."""
+    a, wa, wb = _weights(lam * ln)
+    for j in range(state.shape[0]):
+        state[j] *= a
+    _add_hats(state, va, knots, ln * wa * s, ln * wa)
+    _add_hats(state, vb, knots, ln * wb * s, ln * wb)
+
+
+@njit
+def duhem_columns_into(u: FloatArray, knots: FloatArray, lam: float, stride: int,
                        out: FloatArray) -> None:  # pragma: no cover - compiled
     """The model's output for each knot's hat function as ``G`` (columns ``0..K-1``) and as ``F``
     (columns ``K..2K-1``), from rest, at the samples ``0, stride, ...``: the output of any ``F``,
@@ -130,28 +239,26 @@ def duhem_columns_into(u: FloatArray, knots: FloatArray, lam: float, hmax: float
     state = np.zeros(2 * k_n)
     v = 0.0
     for k in range(u.shape[0]):
-        d = u[k] - v
-        if d != 0.0:
-            n = int(abs(d) / hmax) + 1
-            h = d / n
-            a = math.exp(-lam * abs(h))
-            c = -math.expm1(-lam * abs(h)) / lam
-            s = 1.0 if h > 0.0 else -1.0
-            for i in range(n):
-                vm = v + (i + 0.5) * h
-                for j in range(2 * k_n):
-                    state[j] *= a
-                # the hat functions at vm: two neighbours (or the end one, beyond the knots)
-                lo, hi, w = _segment(vm, knots)
-                if lo == hi:
-                    state[lo] += c * s
-                    state[k_n + lo] += c
-                else:
-                    state[lo] += c * s * (1.0 - w)
-                    state[hi] += c * s * w
-                    state[k_n + lo] += c * (1.0 - w)
-                    state[k_n + hi] += c * w
-            v = u[k]
+        v1 = u[k]
+        if v1 != v:  # the segments of duhem_advance
+            s = 1.0 if v1 > v else -1.0
+            i0 = _first_above(v, knots)
+            i1 = _first_above(v1, knots)
+            va = v
+            if v1 > v:
+                for j in range(i0, i1):
+                    if knots[j] == v1:
+                        break
+                    _columns_segment(state, va, knots[j], knots[j] - va, s, knots, lam)
+                    va = knots[j]
+            else:
+                for j in range(i0 - 1, i1 - 1, -1):
+                    if knots[j] == v:
+                        continue
+                    _columns_segment(state, va, knots[j], va - knots[j], s, knots, lam)
+                    va = knots[j]
+            _columns_segment(state, va, v1, abs(v1 - va), s, knots, lam)
+        v = v1
         if k % stride == 0:
             row = k // stride
             for j in range(2 * k_n):
@@ -164,20 +271,13 @@ def duhem_columns(u: Any, knots: Any, lam: float, stride: int = 1, *, out: Float
     kn = np.ascontiguousarray(knots, dtype=np.float64)
     rows = -(-v.size // stride)
     dest = np.empty((rows, 2 * kn.size)) if out is None else out
-    duhem_columns_into(v, kn, float(lam), substep(kn), int(stride), dest)
+    duhem_columns_into(v, kn, float(lam), int(stride), dest)
     return dest
-
-
-def substep(knots: FloatArray) -> float:
-    """The longest sub-step: :data:`SUBSTEPS_PER_INTERVAL` per mean knot interval (the knots'
-    span, not their narrowest interval: two knots a micro-volt apart in a model file must not cost
-    millions of sub-steps per sample; the fit's knots are evenly spaced, where the two agree)."""
-    return float(knots[-1] - knots[0]) / ((knots.size - 1) * SUBSTEPS_PER_INTERVAL)
 
 
 @njit
 def _band_sweeps(nodes: FloatArray, j0: int, knots: FloatArray, f: FloatArray, g: FloatArray, lam: float,
-                 hmax: float, tol: float, max_sweeps: int) -> FloatArray:  # pragma: no cover - compiled
+                 tol: float, max_sweeps: int) -> FloatArray:  # pragma: no cover - compiled
     """Per node, the lowest and highest ``y`` reachable there from ``y = 0`` at node ``j0``, the
     input moving between nodes: sweeps up and down until no end moves by more than ``tol`` in a
     sweep. Every
@@ -214,8 +314,8 @@ def _band_sweeps(nodes: FloatArray, j0: int, knots: FloatArray, f: FloatArray, g
             j = start
             for _k in range(n):
                 if j != start and a <= b:
-                    a = duhem_advance(nodes[j - direction], a, nodes[j], knots, f, g, lam, hmax)
-                    b = duhem_advance(nodes[j - direction], b, nodes[j], knots, f, g, lam, hmax)
+                    a = duhem_advance(nodes[j - direction], a, nodes[j], knots, f, g, lam)
+                    b = duhem_advance(nodes[j - direction], b, nodes[j], knots, f, g, lam)
                     if a < lo[j]:
                         changed = changed or a < lo[j] - tol
                         lo[j] = a
@@ -245,8 +345,10 @@ def _band_sweeps(nodes: FloatArray, j0: int, knots: FloatArray, f: FloatArray, g
 
 #: Sweeps :func:`reachable_band` makes at most (a model with rising branches needs a few).
 MAX_SWEEPS = 1000
-#: How far beyond the knots (in knot spans) ``v_range`` may reach: the band's sweeps take work in
-#: proportion to the range over the sub-step, and a damaged file's 9.2e18 V took hours.
+#: How far beyond the knots (in knot spans) ``v_range`` may reach: the band is judged on
+#: :data:`REACH_NODES` nodes over the whole range, ever coarser as it widens (under the sub-steps
+#: :func:`duhem_advance` once took, the sweeps' work grew with the range: a damaged file's 9.2e18 V
+#: took hours).
 MAX_RANGE_SPANS = 100
 
 
@@ -264,7 +366,7 @@ def reachable_band(knots: FloatArray, f: FloatArray, g: FloatArray, lam: float,
     # exp(-2 lam h) per sweep (thousands of sweeps); the widening covers it.
     spacing = float(np.max(np.diff(nodes)))
     tol = 1e-3 * spacing * max(float(np.abs(f).max()) + float(np.abs(g).max()), 1e-300)
-    out = _band_sweeps(nodes, j0, knots, f, g, lam, substep(knots), tol, MAX_SWEEPS)
+    out = _band_sweeps(nodes, j0, knots, f, g, lam, tol, MAX_SWEEPS)
     n = nodes.size
     ends, status = out[:2 * n], int(out[2 * n])
     ylo, yhi = ends[:n], ends[n:]
@@ -346,8 +448,8 @@ class GeneralizedDuhem:
                 raise ValueError(
                     f"v_range {lo:g}..{hi:g} V reaches more than {MAX_RANGE_SPANS} times the knots' span beyond "
                     f"them ({float(knots[0]):g}..{float(knots[-1]):g} V): beyond the knots F and G are constant and "
-                    "the model says nothing new, while judging its invertibility over that range takes work in "
-                    "proportion to it; give the range the input really covers")
+                    "the model says nothing new, while its invertibility is judged on nodes spread over the whole "
+                    "range, ever coarser as it widens; give the range the input really covers")
             rng = (lo, hi)
         object.__setattr__(self, "v_range", rng)
         # parameters near the float range's end (a damaged file) overflow here: then no bound
@@ -382,7 +484,7 @@ class GeneralizedDuhem:
         """The output (µm) for the input ``u`` (V) from rest (rate independent)."""
         check_dt(dt, None, self.kind)
         v = as_signal("u", u)
-        return self.offset + duhem_simulate(v, self.knots, self.f, self.g, self.lam, substep(self.knots))
+        return self.offset + duhem_simulate(v, self.knots, self.f, self.g, self.lam)
 
     def predict(self, u: Any, dt: float | None = None) -> FloatArray:
         """The same as :meth:`simulate` (rate independent: ``dt`` is not needed)."""
@@ -434,7 +536,6 @@ class GeneralizedDuhem:
 class GeneralizedDuhemStepper:
     def __init__(self, model: GeneralizedDuhem):
         self.model = model
-        self._h = substep(model.knots)
         self.reset()
 
     def reset(self) -> None:
@@ -446,14 +547,14 @@ class GeneralizedDuhemStepper:
         if not math.isfinite(x):
             raise ValueError(f"u_k must be finite, got {v!r}")
         m = self.model
-        self._y = float(duhem_advance(self._v, self._y, x, m.knots, m.f, m.g, m.lam, self._h))
+        self._y = float(duhem_advance(self._v, self._y, x, m.knots, m.f, m.g, m.lam))
         self._v = x
         return m.offset + self._y
 
 
 @njit
 def _duhem_solve(target: float, v_prev: float, y_prev: float, knots: FloatArray, f: FloatArray, g: FloatArray,
-                 lam: float, hmax: float, offset: float, kappa: float, s_min: float, steps: int,
+                 lam: float, offset: float, kappa: float, s_min: float, steps: int,
                  v_lo: float, v_hi: float) -> float:  # pragma: no cover - compiled
     """The v in ``[v_lo, v_hi]`` with ``offset + y(v) + kappa v = target`` (the range's end when
     the target lies beyond it), ``y`` advanced from ``y_prev`` at ``v_prev``."""
@@ -470,7 +571,7 @@ def _duhem_solve(target: float, v_prev: float, y_prev: float, knots: FloatArray,
         b = v_lo
         clamped = True
     fa = f0
-    fb = offset + duhem_advance(v_prev, y_prev, b, knots, f, g, lam, hmax) + kappa * b - target
+    fb = offset + duhem_advance(v_prev, y_prev, b, knots, f, g, lam) + kappa * b - target
     if clamped and fb * f0 >= 0.0:
         return b  # the target lies beyond what the range reaches
     if fa > 0.0:
@@ -478,7 +579,7 @@ def _duhem_solve(target: float, v_prev: float, y_prev: float, knots: FloatArray,
         fa, fb = fb, fa
     for _ in range(steps):
         m = 0.5 * (a + b)
-        fm = offset + duhem_advance(v_prev, y_prev, m, knots, f, g, lam, hmax) + kappa * m - target
+        fm = offset + duhem_advance(v_prev, y_prev, m, knots, f, g, lam) + kappa * m - target
         if fm == 0.0:
             return m
         if fm < 0.0:
@@ -504,7 +605,6 @@ class GeneralizedDuhemInverse:
         self.model = model
         self.kappa = float(kappa)
         self._s = s
-        self._h = substep(model.knots)
         self.reset()
 
     def reset(self) -> None:
@@ -514,9 +614,9 @@ class GeneralizedDuhemInverse:
     def step(self, target: float) -> float:
         m = self.model
         lo, hi = m.v_range  # type: ignore[misc]
-        v = float(_duhem_solve(float(target), self._v, self._y, m.knots, m.f, m.g, m.lam, self._h, m.offset,
+        v = float(_duhem_solve(float(target), self._v, self._y, m.knots, m.f, m.g, m.lam, m.offset,
                                self.kappa, self._s, BISECTION_STEPS, lo, hi))
-        self._y = float(duhem_advance(self._v, self._y, v, m.knots, m.f, m.g, m.lam, self._h))
+        self._y = float(duhem_advance(self._v, self._y, v, m.knots, m.f, m.g, m.lam))
         self._v = v
         return v
 
@@ -525,7 +625,7 @@ class GeneralizedDuhemInverse:
         m = self.model
         return {"role": "numerical inverse: solve offset + y(v) + kappa v = x_d per sample by bisection",
                 "knots": m.knots.tolist(), "f": m.f.tolist(), "g": m.g.tolist(), "lam": m.lam, "offset": m.offset,
-                "kappa": self.kappa, "min_slope": self._s, "substep": self._h, "bisection_steps": BISECTION_STEPS,
+                "kappa": self.kappa, "min_slope": self._s, "bisection_steps": BISECTION_STEPS,
                 "v_range": list(m.v_range)}  # type: ignore[arg-type]
 
     def to_c(self, c: Any, prefix: str) -> str:
@@ -537,44 +637,91 @@ class GeneralizedDuhemInverse:
         gg = c.array(f"{prefix}_g", m.g)
         vv = c.state_scalar(f"{prefix}_v", 0.0)
         yy = c.state_scalar(f"{prefix}_y", 0.0)
-        lam, hmax, off = c.num(m.lam), c.num(self._h), c.num(m.offset)
+        lam, off = c.num(m.lam), c.num(m.offset)
         kap, smin = c.num(self.kappa), c.num(self._s)
         lo, hi = c.num(m.v_range[0]), c.num(m.v_range[1])  # type: ignore[index]
-        interp, advance, fn = c.name(f"{prefix}_interp"), c.name(f"{prefix}_advance"), c.name(f"{prefix}_solve")
-        c.function(f"""/* generalized Duhem model: F, G piecewise linear over {k_n} knots */
-static double {interp}(double x, const double *vals)
+        above, forcing = c.name(f"{prefix}_above"), c.name(f"{prefix}_forcing")
+        flow, advance, fn = c.name(f"{prefix}_flow"), c.name(f"{prefix}_advance"), c.name(f"{prefix}_solve")
+        wa_c = c.array(f"{prefix}_series_wa", np.array(_WA))
+        wb_c = c.array(f"{prefix}_series_wb", np.array(_WB))
+        c.function(f"""/* generalized Duhem model: F, G piecewise linear over {k_n} knots (constant beyond) */
+static int {above}(double x)
 {{
     int lo = 0;
-    int hi = {k_n - 1};
-    double w;
-    if (x <= {kn}[0]) return vals[0];
-    if (x >= {kn}[{k_n - 1}]) return vals[{k_n - 1}];
-    while (hi - lo > 1) {{
+    int hi = {k_n};
+    while (lo < hi) {{
         const int mid = (lo + hi) / 2;
-        if ({kn}[mid] <= x) lo = mid; else hi = mid;
+        if ({kn}[mid] <= x) lo = mid + 1; else hi = mid;
     }}
-    w = (x - {kn}[lo]) / ({kn}[hi] - {kn}[lo]);
-    return vals[lo] + w * (vals[hi] - vals[lo]);
+    return lo;
 }}
 
-/* y after the input moves from v0 to v1: sub-steps with F, G frozen at their midpoints, each exact */
+/* F(x) + s G(x), i the number of knots at or below x */
+static double {forcing}(double x, int i, double s)
+{{
+    double w;
+    if (i == 0) return {ff}[0] + s * {gg}[0];
+    if (i == {k_n}) return {ff}[{k_n - 1}] + s * {gg}[{k_n - 1}];
+    w = (x - {kn}[i - 1]) / ({kn}[i] - {kn}[i - 1]);
+    return ({ff}[i - 1] + w * ({ff}[i] - {ff}[i - 1])) + s * ({gg}[i - 1] + w * ({gg}[i] - {gg}[i - 1]));
+}}
+
+/* y after a segment of length ln over which the forcing runs linearly from pa to pb, exactly */
+static double {flow}(double y, double ln, double pa, double pb)
+{{
+    const double z = {lam} * ln;
+    const double a = exp(-z);
+    double wa = 0.0;
+    double wb = 0.0;
+    if (z < {c.num(SERIES_BELOW)}) {{
+        int k;
+        for (k = {len(_WA) - 1}; k >= 0; --k) {{
+            wa = {wa_c}[k] - z * wa;
+            wb = {wb_c}[k] - z * wb;
+        }}
+    }} else {{
+        const double e1 = -expm1(-z) / z;
+        wb = (1.0 - e1) / z;
+        wa = e1 - wb;
+    }}
+    return a * y + ln * (wa * pa + wb * pb);
+}}
+
+/* y after the input moves from v0 to v1: segment by segment between the knots it crosses */
 static double {advance}(double v0, double y0, double v1)
 {{
-    const double d = v1 - v0;
     double y = y0;
-    if (d != 0.0) {{
-        const int n = (int)(fabs(d) / {hmax}) + 1;
-        const double h = d / n;
-        const double a = exp(-{lam} * fabs(h));
-        const double cc = -expm1(-{lam} * fabs(h)) / {lam};
-        const double s = (h > 0.0) ? 1.0 : -1.0;
-        int i;
-        for (i = 0; i < n; ++i) {{
-            const double vm = v0 + (i + 0.5) * h;
-            y = a * y + cc * ({interp}(vm, {ff}) + s * {interp}(vm, {gg}));
+    double va = v0;
+    double pa;
+    double s;
+    int i0;
+    int i1;
+    int j;
+    if (v1 == v0) return y0;
+    s = (v1 > v0) ? 1.0 : -1.0;
+    i0 = {above}(v0);
+    i1 = {above}(v1);
+    pa = {forcing}(v0, i0, s);
+    if (v1 > v0) {{
+        for (j = i0; j < i1; ++j) {{
+            double pb;
+            if ({kn}[j] == v1) break;
+            pb = {ff}[j] + {gg}[j];
+            y = {flow}(y, {kn}[j] - va, pa, pb);
+            va = {kn}[j];
+            pa = pb;
         }}
+        return {flow}(y, v1 - va, pa, {forcing}(v1, i1, s));
     }}
-    return y;
+    for (j = i0 - 1; j > i1 - 1; --j) {{
+        double pb;
+        if ({kn}[j] == v0) continue;
+        pb = {ff}[j] - {gg}[j];
+        y = {flow}(y, va - {kn}[j], pa, pb);
+        va = {kn}[j];
+        pa = pb;
+    }}
+    return {flow}(y, va - v1, pa, {forcing}(v1, i1, s));
 }}""")
         c_bracketed_solve(
             c, fn, f"generalized Duhem model, numerical inverse: bisection ({BISECTION_STEPS} halvings), one secant "
