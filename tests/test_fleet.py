@@ -5,6 +5,7 @@ end), and serially; the same figures every way, the corrupt record a row, the od
 import json
 import math
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -660,3 +661,100 @@ def test_a_batch_logged_to_a_file_gets_progress_lines(tmp_path, capsys):
     assert lines[0].endswith("identifying 10 records on this process (serial)"), lines
     assert [ln.split("] ", 1)[1].split(" (")[0] for ln in lines[1:]] == [f"{k}/10 records" for k in range(1, 11)]
     assert "10/10 records (0 failed)" in lines[-1] and "left" not in lines[-1]
+
+
+def test_an_interrupt_while_the_batch_files_are_published_leaves_one_runs_set(tmp_path, monkeypatch, capsys):
+    """summary.csv, summary.parquet and fleet_histograms.png were published one at a time: a Ctrl-C
+    between them left files of two runs that disagree (found by a helper). Here SIGINT comes as the
+    first of them is published: the set is the previous run's, or the new one, never a mix."""
+    import signal
+
+    files = write_simulated_batch(tmp_path / "b", 2, seed=10, fs=200.0, cycles=3)
+    out = tmp_path / "out"
+    identify_many(files, client="serial", out=out)  # the models: the runs below read them back (no cluster)
+    args = ["fleet", "identify", str(tmp_path / "b"), "--model", "pi", "--out", str(out), "--quiet"]
+    assert main(args) == 0
+    names = [n for n in ph.fleet.BATCH_FILES if (out / n).exists()]
+    assert {"summary.csv", "fleet_histograms.png"} <= set(names)
+    before = {n: (out / n).read_bytes() for n in names}
+    real = ph._fileio._publish_file
+
+    def publish_then_ctrl_c(tmp, p, force):
+        real(tmp, p, force)
+        if p.name == "summary.csv":
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(ph._fileio, "_publish_file", publish_then_ctrl_c)
+    assert main([*args, "--outlier-mads", "4"]) == 130  # (other options: every file differs)
+    assert "interrupted" in capsys.readouterr().err
+    changed = {n for n in names if (out / n).read_bytes() != before[n]}
+    assert changed in (set(), set(names)), f"files of two runs: {sorted(changed)} new, the others old"
+    assert not [n for n in os.listdir(out) if n.startswith(".")]  # no temporary file, no lock left
+
+
+def test_a_second_run_on_an_out_folder_in_use_is_refused_at_once(tmp_path, capsys):
+    """Two runs on one --out at once both exited 0, each taking the other's new model files for
+    files that "appeared while this run worked", and a summary marked records as errors whose model
+    files were there (found by a helper). The second is refused at once, naming the folder and the
+    first run's pid; the lock goes with the first run (and a lock file a killed run left is no lock)."""
+    files = write_simulated_batch(tmp_path / "b", 2, seed=11, fs=200.0, cycles=3)
+    out = tmp_path / "out"
+    seen = {}
+
+    def second_run(done, total, row):
+        if done == total:  # (every model file written: without the lock, a second run read them back)
+            seen["code"] = main(["fleet", "identify", str(tmp_path / "b"), "--model", "pi", "--out", str(out),
+                                 "--quiet"])
+            seen["err"] = capsys.readouterr().err
+            try:
+                identify_many(files, client="serial", out=out)
+            except OSError as exc:
+                seen["api"] = exc
+
+    df = identify_many(files, client="serial", out=out, progress=second_run)
+    assert (df["status"] == "ok").all()
+    err = seen["err"]
+    assert seen["code"] == 2 and err.count("\n") == 1, err
+    assert str(out) in err and f"another piezohyst fleet run (pid {os.getpid()}) is writing there" in err, err
+    assert isinstance(seen.get("api"), BlockingIOError) and str(out) in str(seen["api"])
+    assert not [n for n in os.listdir(out) if n.startswith(".")]  # the lock file went with the run
+    (out / ph.fleet.LOCK_FILE).write_text("999999\n", encoding="ascii")  # left by a killed run: no lock
+    assert identify_many(files, client="serial", out=out)["resumed"].all()
+    assert not (out / ph.fleet.LOCK_FILE).exists()
+
+
+@pytest.mark.parametrize("errno_name", ["ENOSPC", "EDQUOT"])
+def test_a_full_disk_stops_the_batch_at_the_first_model_file_it_cannot_write(tmp_path, monkeypatch, errno_name):
+    """With the disk full every record was fitted, each an error row, before the batch failed on
+    summary.csv (found by a helper): it stops at the first model file, naming the folder; the model
+    files written stay and a rerun resumes from them."""
+    import errno
+
+    from piezohyst._fileio import OutputError
+
+    code = getattr(errno, errno_name)
+    files = write_simulated_batch(tmp_path / "b", 4, seed=12, fs=200.0, cycles=3)
+    out = tmp_path / "out"
+    real = ph.fleet._write_model
+    calls = []
+
+    def full_after_one(doc, path, force):
+        calls.append(path.name)
+        if len(calls) == 1:
+            return real(doc, path, force)
+        cause = OSError(code, os.strerror(code), str(path))
+        if code == errno.ENOSPC:
+            raise cause
+        raise OutputError(f"cannot write {path}: {cause.strerror}") from cause  # as atomic_write words it
+
+    monkeypatch.setattr(ph.fleet, "_write_model", full_after_one)
+    with pytest.raises(OSError, match=rf"cannot write model files in {re.escape(str(out / 'models'))}: "
+                                      rf"{re.escape(os.strerror(code))}.*run the same command again to resume") as info:
+        identify_many(files, client="serial", out=out)
+    assert info.value.errno == code
+    assert len(calls) == 2  # stopped there, not one more fit per record
+    assert [p.name for p in (out / "models").glob("*.json")] == calls[:1]
+    assert not (out / "summary.csv").exists()
+    monkeypatch.undo()
+    again = identify_many(files, client="serial", out=out)
+    assert again["resumed"].sum() == 1 and (again["status"] == "ok").all()

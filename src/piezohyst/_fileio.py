@@ -156,10 +156,10 @@ def deferred_signals() -> Iterator[None]:
     try:
         yield
     finally:
+        for sig, handler in swapped.items():  # the handlers back first: what the mask held goes to them
+            signal.signal(sig, handler)
         if can:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
-        for sig, handler in swapped.items():
-            signal.signal(sig, handler)
         for n in dict.fromkeys(noted):
             signal.raise_signal(n)
 
@@ -311,26 +311,30 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, *, force: bool = 
     return atomic_write(path, lambda t: t.write_text(text, encoding="utf-8"), force=force)
 
 
-def atomic_write_texts(texts: dict[Path, str], *, force: bool = False) -> list[Path]:
-    """Write several files (UTF-8 text) that belong together, as :func:`atomic_write` writes one,
-    and publish them together: every file is written to a temporary name first (a full disk or an
-    error leaves none of them), then all are moved into place in one block that signals wait for;
-    if one of them cannot be (it appeared meanwhile), the ones moved before it are put back. So a
-    C header and its source are never left as one without the other, or as halves of two runs
-    (found by a helper: an interrupt between them left compensator.h alone, and with force a new
-    header beside the old source, which compiled)."""
-    paths = [check_output_file(p, force) for p in texts]
+def atomic_write_files(writes: dict[Path, Callable[[Path], object]], *, force: bool = False) -> list[Path]:
+    """:func:`atomic_write` for several files that belong together, published together: each
+    ``write(tmp)`` fills a temporary file beside its target (a full disk or an error leaves none
+    of them), then all are moved into place in one block that signals wait for
+    (:func:`deferred_signals`); if one of them cannot be (it appeared meanwhile), the ones moved
+    before it are put back (with ``force``, the files they replaced). So a C header and its source
+    are never left as one without the other or as halves of two runs, nor a batch's summary.csv,
+    summary.parquet and histograms (found by helpers: an interrupt between them left
+    compensator.h alone, and with force a new header beside the old source, which compiled; a
+    fleet's files came from two runs). Returns the paths, in the order given."""
+    paths = [check_output_file(p, force) for p in writes]
     tmps: list[Path] = []
     try:
-        for p, text in zip(paths, texts.values()):
+        for p, write in zip(paths, writes.values()):
             p.parent.mkdir(parents=True, exist_ok=True)
             with deferred_signals():
                 fd, name = tempfile.mkstemp(prefix=f".{_short(p.name)}.", suffix=".tmp", dir=p.parent)
                 os.close(fd)
                 tmps.append(Path(name))
             try:
-                tmps[-1].write_text(text, encoding="utf-8")
+                write(tmps[-1])
             except OSError as exc:
+                if isinstance(exc, OutputError):
+                    raise
                 raise OutputError(f"cannot write {p}: {exc.strerror or exc}") from exc
             _chmod_ordinary(tmps[-1])
         moved: list[tuple[Path, Path | None]] = []  # (path, the name its previous content was moved to)
@@ -369,6 +373,87 @@ def atomic_write_texts(texts: dict[Path, str], *, force: bool = False) -> list[P
             for tmp in tmps:
                 tmp.unlink(missing_ok=True)
     return paths
+
+
+def atomic_write_texts(texts: dict[Path, str], *, force: bool = False) -> list[Path]:
+    """:func:`atomic_write_files` of UTF-8 texts."""
+    def writer(text: str) -> Callable[[Path], object]:
+        return lambda t: t.write_text(text, encoding="utf-8")
+
+    return atomic_write_files({p: writer(text) for p, text in texts.items()}, force=force)
+
+
+# ------------------------------------------------------------------------------------------------
+# one writer per folder
+class FolderBusy(OutputError, BlockingIOError):
+    """Another process holds the folder's lock (:func:`folder_lock`): it is writing there."""
+
+
+@contextlib.contextmanager
+def folder_lock(folder: str | os.PathLike[str], name: str, what: str) -> Iterator[Path]:
+    """Hold an exclusive lock on ``folder`` (created if absent) while the block runs, or refuse at
+    once (:class:`FolderBusy`, naming the folder and the holder's process id) where another
+    process holds it: two runs writing one folder took each other's files for a user's and their
+    summary marked records as errors whose model files were there (found by a helper).
+
+    The lock is ``fcntl.flock`` on the file ``folder/name``, which records the holder's pid; the
+    system releases it when the holder ends, however it ends (a killed run leaves no stale lock).
+    The file is removed when the block ends (removed while still locked, and a process that locked
+    a file already removed tries again, so two never hold it at once). ``what`` names the writer
+    in the refusal ("another piezohyst fleet run"). Yields the lock file's path.
+    """
+    folder = Path(folder)
+    try:
+        import fcntl
+    except ImportError:  # no flock here (Windows): no lock; runs sharing a folder are not kept apart
+        yield folder / name
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / name
+    fd = -1
+    try:
+        while True:
+            with deferred_signals():  # a signal now would leave the descriptor open
+                fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                if exc.errno in (errno.ENOLCK, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EINVAL):
+                    os.close(fd)  # a file system without locks (some network ones): as without fcntl
+                    fd = -1
+                    break
+                if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    os.close(fd)
+                    fd = -1
+                    raise
+                try:
+                    pid = os.read(fd, 32).decode("ascii", "replace").strip()
+                except OSError:
+                    pid = ""
+                os.close(fd)  # not ours: neither removed nor unlocked here
+                fd = -1
+                who = f"{what} (pid {pid})" if pid.isdigit() else what
+                raise FolderBusy(f"{folder} is in use: {who} is writing there; wait for it to end, or give "
+                                 f"another folder (lock file {path})") from None
+            try:
+                now, held = os.stat(path), os.fstat(fd)
+                same = (now.st_dev, now.st_ino) == (held.st_dev, held.st_ino)
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)  # locked a file its holder removed as it ended: take the new one
+            fd = -1
+        if fd >= 0:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode("ascii"))
+        yield path
+    finally:
+        if fd >= 0:
+            with deferred_signals():
+                with contextlib.suppress(OSError):
+                    path.unlink()
+                os.close(fd)  # (releases the lock)
 
 
 # ------------------------------------------------------------------------------------------------

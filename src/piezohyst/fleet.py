@@ -104,6 +104,8 @@ them, and :class:`MissingExtraError` says how to install them when they are miss
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import glob
 import hashlib
 import json
@@ -772,20 +774,83 @@ def local_cluster(workers: int | None = None, *, dashboard_address: str | None =
 
     n = CPU_COUNT if workers is None else workers
     _check_workers(n)
-    with dask.config.set(LOCAL_CLUSTER_CONFIG):  # read by the servers as they start; the nannies pass it on
-        cluster = distributed.LocalCluster(
-            n_workers=int(n), threads_per_worker=1, processes=True, host="127.0.0.1",
-            dashboard_address=dashboard_address, silence_logs=logging.ERROR,
-            # without a dashboard the scheduler still serves HTTP (health, metrics), on 8787 by
-            # default: on a shared machine that port is often taken, and distributed then warns
-            # and moves; any free loopback port says the same without the warning
-            scheduler_kwargs=None if dashboard_address is not None else {"dashboard_address": "127.0.0.1:0"},
-            env={"NUMBA_NUM_THREADS": "1"})
+    from distributed.deploy.spec import SpecCluster
+
+    before = {id(c) for c in SpecCluster._instances}
     try:
+        with dask.config.set(LOCAL_CLUSTER_CONFIG):  # read by the servers as they start; the nannies pass it on
+            cluster = distributed.LocalCluster(
+                n_workers=int(n), threads_per_worker=1, processes=True, host="127.0.0.1",
+                dashboard_address=dashboard_address, silence_logs=logging.ERROR,
+                # without a dashboard the scheduler still serves HTTP (health, metrics), on 8787 by
+                # default: on a shared machine that port is often taken, and distributed then warns
+                # and moves; any free loopback port says the same without the warning
+                scheduler_kwargs=None if dashboard_address is not None else {"dashboard_address": "127.0.0.1:0"},
+                env={"NUMBA_NUM_THREADS": "1"})
         return distributed.Client(cluster)
     except BaseException:
-        cluster.close()
+        # interrupted (Ctrl-C, SIGTERM) or failed while starting: close what was started here, quietly
+        _close_quietly([c for c in list(SpecCluster._instances) if id(c) not in before])
         raise
+
+
+def _close_quietly(clusters: list[Any]) -> None:
+    """Close clusters whose start was interrupted, and keep distributed's exit hook from trying
+    again: a Ctrl-C or SIGTERM 2-3 s into ``fleet identify`` gave its one-line message, then 25
+    lines of traceback from that hook (``close_clusters``: ``AssertionError: Status.init``, or
+    ``RuntimeError: Nanny failed to start``: found by a helper). Their workers' processes are
+    ended by the close, or else by multiprocessing as this process exits."""
+    import logging
+
+    from distributed.deploy.spec import SpecCluster
+
+    for cluster in clusters:
+        _drop_unretrieved_start_failures(getattr(getattr(cluster, "loop", None), "asyncio_loop", None))
+        try:
+            # a half-started cluster's close may fail, and say so in distributed's log: both quiet
+            with _quiet_logs("distributed"):
+                cluster.close(timeout=10)
+        except Exception:  # noqa: BLE001, S110 - what a half-started cluster's close can raise; it is going anyway
+            pass
+        finally:
+            SpecCluster._instances.discard(cluster)
+            logging.getLogger("distributed").debug("closed a cluster whose start was interrupted")
+
+
+def _drop_unretrieved_start_failures(loop: Any) -> None:
+    """Keep ``loop`` from logging, as its tasks are collected, the start-up failures of workers
+    whose start was interrupted ("Task exception was never retrieved ... RuntimeError: Nanny
+    failed to start.", 20 lines); every other message goes where it went."""
+    if loop is None or getattr(loop.get_exception_handler(), "_piezohyst_filter", False):
+        return
+    previous = loop.get_exception_handler()
+
+    def handler(lp: Any, context: dict[str, Any]) -> None:
+        exc = context.get("exception")
+        if (str(context.get("message", "")).startswith("Task exception was never retrieved")
+                and isinstance(exc, (RuntimeError, TimeoutError))
+                and ("failed to start" in str(exc) or "start timed out" in str(exc))):
+            return
+        if previous is not None:
+            previous(lp, context)
+        else:
+            lp.default_exception_handler(context)
+
+    handler._piezohyst_filter = True  # type: ignore[attr-defined]
+    loop.set_exception_handler(handler)
+
+
+@contextlib.contextmanager
+def _quiet_logs(name: str) -> Any:
+    import logging
+
+    log = logging.getLogger(name)
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
 
 
 def _speaks_first(address: str, timeout: float) -> None:
@@ -1062,7 +1127,7 @@ def _cluster_lost(client: Any, exc: BaseException) -> bool:
 def identify_many(
     paths: Any, *, kind: str = "pi", client: Any = None, out: str | os.PathLike[str] | None = None,
     force: bool = False, workers: int | None = None, progress: bool | Callable[..., Any] = False,
-    outlier_mads: float = OUTLIER_MADS, timeout: float = 30.0, **options: Any,
+    outlier_mads: float = OUTLIER_MADS, timeout: float = 30.0, histograms: bool = False, **options: Any,
 ) -> Any:
     """Identify every record of a batch, one Dask task per record (quick records in small groups); one row per record.
 
@@ -1091,6 +1156,10 @@ def identify_many(
         Flag actuators further than this many MADs from the median (:func:`batch_statistics`).
     timeout : float
         Seconds to wait for the scheduler when ``client`` is an address.
+    histograms : bool
+        Also write ``out/fleet_histograms.png`` (:func:`plot_histograms`, as the command line
+        does), published together with the summary files: an interrupted run leaves the previous
+        set or the new one, never files of two runs (:func:`write_summary`).
     **options
         :class:`FitOptions` (``method``, ``n``, ``seed``, ``max_iter``, ``polish``, ``delay``,
         ``u_col``, ``y_col``, ``t_col``, ``fs``).
@@ -1099,6 +1168,16 @@ def identify_many(
     -------
     pandas.DataFrame
         One row per record, in the order of ``paths``, with the columns :data:`COLUMNS`.
+
+    Raises
+    ------
+    piezohyst._fileio.FolderBusy
+        Another run is writing in ``out`` (it holds the folder's lock, :data:`LOCK_FILE`): refused
+        at once, naming the folder and that run's process id.
+    piezohyst._fileio.OutputError
+        A model file could not be written for want of space (``ENOSPC``, ``EDQUOT``) or on a
+        read-only file system: the batch stops there, naming the folder; the model files written
+        so far stay, and a rerun resumes from them.
 
     Examples
     --------
@@ -1117,6 +1196,7 @@ def identify_many(
     if not isinstance(paths, (str, os.PathLike)) and not hasattr(paths, "__iter__"):
         raise TypeError(f"paths must be a file, a folder, a glob or a list of them, got {type(paths).__name__}")
     as_flag("force", force)  # (force="no" refitted everything: found by fuzzing)
+    as_flag("histograms", histograms)
     if not (isinstance(client, str) or client is None or hasattr(client, "submit")):
         raise TypeError(f"client must be None, 'serial', a scheduler address or a distributed.Client, "
                         f"got {type(client).__name__}")
@@ -1127,11 +1207,56 @@ def identify_many(
         _check_workers(workers)
     records = find_records(paths)
     out_dir = Path(out) if out is not None else None
+    if out_dir is not None and out_dir.exists() and not out_dir.is_dir():
+        raise NotADirectoryError(f"{out_dir}: exists and is not a folder: a batch writes into a folder (out= in "
+                                 f"Python, --out at the command line)")
+    with contextlib.ExitStack() as held:
+        if out_dir is not None:
+            # one run at a time per out folder: two at once each took the other's new model files
+            # for files that "appeared while this run worked", and their summaries marked records
+            # as errors whose model files were there (found by a helper)
+            from ._fileio import folder_lock
+
+            if not out_dir.exists():  # the folder the lock makes, removed if the run leaves it empty
+                held.callback(_remove_empty_folder, out_dir)
+            held.enter_context(folder_lock(out_dir, LOCK_FILE, "another piezohyst fleet run"))
+        return _identify_locked(pd, records, out_dir, opts, client, force, workers, progress, outlier_mads,
+                                timeout, histograms)
+
+
+def _remove_empty_folder(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        folder.rmdir()  # (fails, as it should, where anything is in it)
+
+
+#: The lock file of an out folder while a batch writes there (:func:`~piezohyst._fileio.folder_lock`):
+#: hidden, no data suffix, outside ``models/``; removed at the end.
+LOCK_FILE = ".piezohyst-fleet.lock"
+
+#: Errors of a model file that no other record's could escape (the disk, not the record): the
+#: batch stops at the first (it fitted all 20 records of a full disk, each an error row, then
+#: failed on the summary: found by a helper).
+DISK_ERRNOS = frozenset(e for e in (getattr(errno, n, None) for n in ("ENOSPC", "EDQUOT", "EROFS")) if e is not None)
+
+
+def _disk_errno(exc: BaseException) -> int | None:
+    """The errno of :data:`DISK_ERRNOS` behind ``exc`` (itself or what it was raised from), if any."""
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, OSError) and cur.errno in DISK_ERRNOS:
+            return cur.errno
+        seen.add(id(cur))
+        cur = cur.__cause__ or cur.__context__
+    return None
+
+
+def _identify_locked(pd: Any, records: list[tuple[str, Path]], out_dir: Path | None, opts: FitOptions,
+                     client: Any, force: bool, workers: int | None, progress: Any, outlier_mads: float,
+                     timeout: float, histograms: bool) -> Any:
+    """:func:`identify_many` from the out folder's checks on, its lock held."""
     models_dir = None
     if out_dir is not None:
-        if out_dir.exists() and not out_dir.is_dir():
-            raise NotADirectoryError(f"{out_dir}: exists and is not a folder: a batch writes into a folder (out= in "
-                                     f"Python, --out at the command line)")
         check_batch_files(out_dir, force)  # before the fits, not after an hour of them
         models_dir = out_dir / "models"
         inside = out_dir.resolve()
@@ -1160,6 +1285,17 @@ def identify_many(
             try:
                 row["model_file"] = str(_write_model(res["document"], models_dir / f"{name}.json", force))
             except OSError as exc:
+                code = _disk_errno(exc)
+                if code is not None:  # every record after it would fail alike: stop here
+                    from ._fileio import OutputError
+
+                    kept = sum(1 for r in rows.values() if r["model_file"] and not r["resumed"])
+                    err = OutputError(
+                        f"cannot write model files in {models_dir}: {os.strerror(code)} (at record {name}); the "
+                        f"batch stopped there, the {kept} model file(s) this run wrote are kept: make room (or "
+                        f"give another out folder) and run the same command again to resume")
+                    err.errno = code
+                    raise err from exc
                 row.update(status="error", error=f"fitted, but the model file could not be written: {exc}")
         rows[name] = row
         bar.advance(row)
@@ -1190,7 +1326,14 @@ def identify_many(
     df = pd.DataFrame.from_records([rows[n] for n, _ in records], columns=list(COLUMNS))
     df = batch_statistics(df, threshold=outlier_mads).table
     if out_dir is not None:
-        write_summary(df, out_dir, force=force)
+        figure = _histogram_figure(df, outlier_mads) if histograms else None
+        try:
+            write_summary(df, out_dir, force=force, figure=figure)
+        finally:
+            if figure is not None:
+                import matplotlib.pyplot as plt
+
+                plt.close(figure)
     if models_dir is not None and models_dir.is_dir():
         # model files of records no longer in the batch (renamed, removed) stayed without a word
         # (found by fuzzing): named, not removed (they are the user's results)
@@ -1202,6 +1345,8 @@ def identify_many(
 #: The files a batch writes in its out folder besides ``models/``, which a later run of the same
 #: batch replaces (the command line writes the histograms)
 BATCH_FILES = ("summary.csv", "summary.parquet", "fleet_histograms.png")
+#: The histograms' file name in the out folder.
+HISTOGRAMS = BATCH_FILES[2]
 
 
 def _written_by_a_fleet(path: Path) -> bool:
@@ -1242,24 +1387,42 @@ def check_batch_files(out: str | os.PathLike[str], force: bool) -> None:
                 f"or replace it and refit every record (force=True in Python, --force at the command line)")
 
 
-def write_summary(df: Any, out: str | os.PathLike[str], *, force: bool = False) -> list[Path]:
-    """Write ``out/summary.csv`` (and ``summary.parquet`` when pyarrow is installed), atomically,
-    replacing a previous batch's; a file of those names that no batch wrote is refused unless
-    ``force`` (:func:`check_batch_files`). Each row's ``written_by`` says what wrote the file
-    (package, version, command line, time: the summary keeps no comment line, so that every
-    spreadsheet and ``pandas.read_csv`` reads it as it is). Returns the files written."""
+def write_summary(df: Any, out: str | os.PathLike[str], *, force: bool = False, figure: Any = None) -> list[Path]:
+    """Write ``out/summary.csv`` (and ``summary.parquet`` when pyarrow is installed), and
+    ``figure`` (a matplotlib figure, optional) as ``out/fleet_histograms.png``, replacing a
+    previous batch's; a file of those names that no batch wrote is refused unless ``force``
+    (:func:`check_batch_files`). The files are written to temporary names first and published
+    together (:func:`~piezohyst._fileio.atomic_write_files`): an interrupted run leaves the
+    previous set or this one, never files of two runs (summary.csv of one run beside the
+    histograms of another, after a Ctrl-C between them: found by a helper). Each row's
+    ``written_by`` says what wrote the file (package, version, command line, time: the summary
+    keeps no comment line, so that every spreadsheet and ``pandas.read_csv`` reads it as it is).
+    Returns the files written."""
     import importlib.util
 
-    from ._fileio import atomic_write, producer
+    from ._fileio import atomic_write_files, producer
 
     out_dir = Path(out)
     check_batch_files(out_dir, force)
     table = df.assign(written_by=producer())
-    written = [atomic_write(out_dir / "summary.csv", lambda tmp: table.to_csv(tmp, index=False), force=True)]
+    writes: dict[Path, Callable[[Path], object]] = {out_dir / "summary.csv": lambda tmp: table.to_csv(tmp, index=False)}
     if importlib.util.find_spec("pyarrow") is not None:
-        written.append(atomic_write(out_dir / "summary.parquet", lambda tmp: table.to_parquet(tmp, index=False),
-                                    force=True))
-    return written
+        writes[out_dir / "summary.parquet"] = lambda tmp: table.to_parquet(tmp, index=False)
+    if figure is not None:
+        from .plots import figure_writer
+
+        writes[out_dir / HISTOGRAMS] = figure_writer(figure, out_dir / HISTOGRAMS, note="piezohyst fleet: batch histograms")
+    return atomic_write_files(writes, force=True)
+
+
+def _histogram_figure(df: Any, outlier_mads: float) -> Any:
+    """The batch's histograms (:func:`plot_histograms`) under a title saying what they show."""
+    stats = batch_statistics(df, threshold=outlier_mads)
+    drawn = stats.plot()
+    figure = next(iter(drawn.values()))["ax"].figure
+    figure.suptitle(f"{int((df['status'] == 'ok').sum())} actuators identified ({df['kind'].iloc[0]}); "
+                    f"outliers beyond {outlier_mads:g} MADs marked", fontsize=10)
+    return figure
 
 
 # ------------------------------------------------------------------------------------------------

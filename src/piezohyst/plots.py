@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -457,6 +457,19 @@ def save(fig_or_ax: Any, path: str | os.PathLike[str], *, force: bool = True, no
     from ._fileio import atomic_write
 
     fig = fig_or_ax if hasattr(fig_or_ax, "savefig") else fig_or_ax.figure
+    out = atomic_write(path, figure_writer(fig, path, note=note, producer=producer), force=force)
+    if close:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+    return out
+
+
+def figure_writer(fig: Any, path: str | os.PathLike[str], *, note: str | None = None,
+                  producer: str | None = None) -> Callable[[Path], None]:
+    """What :func:`save` writes, as a ``write(tmp)`` for :mod:`piezohyst._fileio`'s atomic writers
+    (a figure published together with other files: :func:`~piezohyst._fileio.atomic_write_files`);
+    the format from ``path``'s suffix, refused now if it has none of :data:`FORMATS`."""
     p = Path(path)
     fmt = p.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
@@ -467,12 +480,7 @@ def save(fig_or_ax: Any, path: str | os.PathLike[str], *, force: bool = True, no
     def write(tmp: Path) -> None:
         fig.savefig(tmp, format=fmt, dpi=_DPI, metadata=meta)
 
-    out = atomic_write(p, write, force=force)
-    if close:
-        import matplotlib.pyplot as plt
-
-        plt.close(fig)
-    return out
+    return write
 
 
 def save_formats(fig_or_ax: Any, path: str | os.PathLike[str], formats: Any = ("png",), *,

@@ -57,26 +57,24 @@ def cmd_fleet_identify(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from .. import fleet
-    from ..plots import save, use_headless_backend
+    from ..plots import use_headless_backend
 
     options = dict(method=args.method, n=args.n, seed=args.seed, max_iter=args.iterations,
                    polish=not args.no_polish, delay=args.delay, history=args.history, **data_options(args))
+    use_headless_backend()
     t0 = time.perf_counter()
     try:
+        # the histograms are written with the summary, as one set (written apart, a Ctrl-C between
+        # them left a summary and histograms of two runs: found by a helper)
         df = fleet.identify_many(args.paths, kind=args.model, client=args.scheduler, out=args.out,
                                  force=args.force, workers=args.workers, progress=not args.quiet,
-                                 outlier_mads=args.outlier_mads, timeout=args.timeout, **options)
+                                 outlier_mads=args.outlier_mads, timeout=args.timeout, histograms=True, **options)
     except fleet.MissingExtraError as exc:
         raise UsageError(str(exc)) from None
     elapsed = time.perf_counter() - t0
     stats = fleet.batch_statistics(df, threshold=args.outlier_mads)
     out = Path(args.out)
-    use_headless_backend()
-    drawn = stats.plot()
-    figure = next(iter(drawn.values()))["ax"].figure
-    figure.suptitle(f"{int((df['status'] == 'ok').sum())} actuators identified ({df['kind'].iloc[0]}); "
-                    f"outliers beyond {args.outlier_mads:g} MADs marked", fontsize=10)
-    hist = save(figure, out / "fleet_histograms.png", force=True, note="piezohyst fleet: batch histograms")
+    hist = out / fleet.HISTOGRAMS
     summary = [out / "summary.csv"] + ([out / "summary.parquet"] if (out / "summary.parquet").exists() else [])
     ok = df["status"] == "ok"
     failed = df[~ok]
