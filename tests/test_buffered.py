@@ -75,7 +75,9 @@ def test_open_loop_and_track_play_tables_on_a_buffered_plant():
     out = ph.track(plant, ref, feedforward=ff)
     assert out.info["mode"] == "buffered" and out.info["feedback"] is False
     np.testing.assert_array_equal(out.command, ff.command(ref))
-    assert out.e_max_percent < 10
+    # measured 4.00 % (seeds 1-5: 3.90-4.04 %); no compensation gives 10.8 % (audit) and a feedforward
+    # 3 % off in gain 7.9 %: 6 % leaves the run a 1.5x margin and refuses either
+    assert out.e_max_percent < 6
     with pytest.raises(ValueError, match="only plays tables"):
         ph.track(plant, ref, feedforward=ff, feedback=ph.PID(0.0, 100.0, 0.0, rig.dt))
 

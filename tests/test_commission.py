@@ -179,7 +179,13 @@ def test_track_best_cli_with_variants(capsys):
     assert res["rig"]["noise_rms_um"] == pytest.approx(0.0045)
     assert [r["freq_hz"] for r in res["results"]] == [1.0, 5.0]
     assert all(r["e_max_percent"] < 2.0 for r in res["results"])
-    assert res["controller"]["delay_samples"] >= 0
+    # the rig reads its sensor one sample late (VirtualRig's delay_samples = 1, echoed in the
+    # document); its amplifier's 0.8 ms lag and the held command add phase the model's input lag
+    # does not all take up, so the fitted delay is at least the rig's and at most two samples more
+    # (measured: 2). A delay of 0 would let the feedforward's preview lag the stage.
+    rig_delay = res["rig"]["delay_samples"]
+    assert rig_delay == 1
+    assert rig_delay <= res["controller"]["delay_samples"] <= rig_delay + 2
 
 
 class _Backlash500Hz:

@@ -73,7 +73,34 @@ def test_pid_derivative_is_filtered_and_has_no_kick():
     pid = ph.PID(kd=1.0, dt=1e-3, tf=1e-2)
     assert pid.step(5.0) == 0.0  # first sample: no derivative kick
     d1 = pid.step(6.0)
-    assert 0 < d1 < 1.0 / 1e-3  # filtered: less than the raw difference quotient
+    # the filter of pid.py, D = tf/(tf+dt) D + kd/(tf+dt) (e - e_prev), from D = 0 with a unit
+    # step of e: kd / (tf + dt) = 1 / 0.011 = 90.909 (the raw quotient kd/dt would be 1000)
+    assert d1 == pytest.approx(1.0 / (1e-2 + 1e-3), rel=1e-12)
+    # e held: the derivative decays by the pole tf / (tf + dt) = 10/11 each sample
+    assert pid.step(6.0) == pytest.approx(d1 * 1e-2 / (1e-2 + 1e-3), rel=1e-12)
+    assert pid.step(6.0) == pytest.approx(d1 * (1e-2 / (1e-2 + 1e-3)) ** 2, rel=1e-12)
+
+
+def test_pid_integral_is_backward_euler_with_conditional_anti_windup():
+    # pid.py: I += ki dt e, the current sample's error included (backward Euler), so the first
+    # output is ki dt e = 10 * 1e-3 * 2 = 0.02 (forward Euler would give 0 and lag one sample)
+    pid = ph.PID(ki=10, dt=1e-3)
+    assert pid.step(2.0) == pytest.approx(0.02, rel=1e-12)
+    assert pid.integral == pytest.approx(0.02, rel=1e-12)
+    outs = [pid.step(e) for e in (1.0, -3.0, 0.5, 4.0)]
+    # running sums of ki dt e: 0.02 + 0.01, - 0.03, + 0.005, + 0.04
+    assert outs == pytest.approx([0.03, 0.0, 0.005, 0.045], abs=1e-15)
+    assert pid.integral == pytest.approx(0.045, abs=1e-15)
+    # a sample the actuator clipped (saturated=+1) does not integrate further up, but down it does
+    assert pid.step(2.0, saturated=1) == pytest.approx(0.045, abs=1e-15)
+    assert pid.step(-1.0, saturated=1) == pytest.approx(0.035, abs=1e-15)
+    # its own limit: an increment that would take the output past u_max is not taken (the
+    # integral stays at 0.04 after 0.02 + 0.02, as 0.06 > 0.05), and the output is not pinned
+    # to the limit
+    lim = ph.PID(ki=10, dt=1e-3, u_max=0.05)
+    assert [lim.step(2.0) for _ in range(4)] == pytest.approx([0.02, 0.04, 0.04, 0.04], abs=1e-15)
+    assert lim.integral == pytest.approx(0.04, abs=1e-15)
+    assert lim.step(-1.0) == pytest.approx(0.03, abs=1e-15)  # unwinds at once: no stored excess
 
 
 @given(kp=st.floats(0, 5), ki=st.floats(0, 50), e=st.lists(st.floats(-10, 10), min_size=1, max_size=50))

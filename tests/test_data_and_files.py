@@ -97,10 +97,20 @@ def test_dataset_validation():
 
 
 def test_model_files_round_trip_and_refuse_overwrite(tmp_path):
-    for model in (pv.pi_model(), pv.bouc_wen_model()):
+    # the paper's models leave every optional field at its default; the last two set all of them
+    # (P-I: initial_state, offset, input_offset; Bouc-Wen: offset, h0), so a file that dropped one
+    # of them would load a different model
+    pi_set = ph.PrandtlIshlinskii(ph.equal_thresholds(4, 100.0), [0.02, 0.004, 0.002, 0.001],
+                                  initial_state=[-3.0, 10.0, -20.0, 30.0], offset=0.25, input_offset=3.0)
+    bw_set = ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072, gamma=0.0,
+                        offset=5e-7, h0=2e-7)
+    u = 50.0 - 50.0 * np.cos(np.linspace(0.0, 4 * np.pi, 400))
+    for model in (pv.pi_model(), pv.bouc_wen_model(), pi_set, bw_set):
         p = tmp_path / "m.json"
         ph.save_model(model, p, force=True)
-        assert ph.load_model(p) == model
+        back = ph.load_model(p)
+        assert back == model
+        assert np.array_equal(back.predict(u, 1e-4), model.predict(u, 1e-4))
         doc = json.loads(p.read_text())
         # no operating range: the oldest version that holds it, which earlier releases read too
         assert doc["schema"] == "piezohyst.model/2" and SCHEMA_VERSION == 6

@@ -172,14 +172,24 @@ def test_fit_pi_refuses_bad_input():
 
 
 def test_fit_bouc_wen_recovers_the_paper_model():
-    # the paper's model, 1 Hz 0-100 V, 2 nm of sensor noise: d1, alpha, beta within 5 %
+    # the paper's model, 1 Hz 0-100 V, 2 nm of sensor noise and a 0.5 um sensor zero: d1, alpha,
+    # beta within 5 %, the zero in the returned model
     bw = pv.bouc_wen_model()
     u = ph.sinusoid(1.0, 2, 0.0, 100.0, DT)
-    y = bw.simulate(u, DT) * 1e6 + np.random.default_rng(1).normal(0, 0.002, u.size)
+    y = bw.simulate(u, DT) * 1e6 + np.random.default_rng(1).normal(0, 0.002, u.size) + 0.5
     fit = ph.fit_bouc_wen(u, y, DT, seed=0)
     for name in ("d1", "alpha", "beta"):
         assert getattr(fit.model, name) == pytest.approx(getattr(bw, name), rel=0.05), name
     assert fit.rmse < 0.0025  # at the noise floor, um
+    # the offset is in metres: 0.5 um = 5e-7 m. Measured 5.0000058e-7; the noise alone moves a
+    # mean over 20000 samples by 2 nm / sqrt(20000) = 1.4e-11 m, so 1 nm is a wide margin that
+    # still refuses any offset more than a fifth of a noise sigma wrong
+    assert fit.model.offset == pytest.approx(5e-7, abs=1e-9)
+    # the returned model itself (not just the fitness) meets the data at the noise floor
+    # (measured 0.0019878 um, the 2 nm noise's own RMS; a lost offset gives ~0.5 um)
+    own = float(np.sqrt(np.mean((fit.model.predict(u, DT) - y) ** 2)))
+    assert own < 0.0025
+    assert own == pytest.approx(fit.rmse, rel=1e-6)  # the rmse reported is the returned model's
     assert fit.info["pso_rmse"] >= fit.rmse
     # m, b and k only shape a 1.7 kHz resonance that 1 Hz data cannot see
     assert {"m", "k"} <= set(fit.poorly_constrained)

@@ -53,9 +53,23 @@ def _duhem_bipolar():
                                lam=0.02, offset=-0.2, v_range=(-30.0, 100.0))
 
 
+def _pi_offsets():
+    """Every optional field away from its default: a started (not zero) play state, an input
+    offset and an output offset (a file that dropped any of them loaded a different model)."""
+    return ph.PrandtlIshlinskii(ph.equal_thresholds(6, 100.0), [0.02, 0.004, 0.002, 0.001, -0.0005, 0.0004],
+                                initial_state=[-5.0, 3.0, 5.0, -5.0, 5.0, 0.0], offset=0.3, input_offset=5.0)
+
+
+def _bw_offsets():
+    """The paper's model with a sensor zero (``offset``, m) and a started hysteresis state (``h0``, m)."""
+    return ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072, gamma=0.0,
+                      offset=5e-7, h0=2e-7)
+
+
 EXAMPLES = {
-    "prandtl-ishlinskii": [_pi],
-    "bouc-wen": [lambda: ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072, gamma=0.0)],
+    "prandtl-ishlinskii": [_pi, _pi_offsets],
+    "bouc-wen": [lambda: ph.BoucWen(m=0.75, b=27.96, k=8.54e7, d1=2.15e-8, alpha=0.472, beta=0.072, gamma=0.0),
+                 _bw_offsets],
     "preisach": [_preisach],
     "bouc-wen-hysteresis": [_bwh, _bwh_ranged],
     "generalized-duhem": [_duhem, _duhem_bipolar],

@@ -145,7 +145,9 @@ def test_a_plant_whose_dt_is_single_precision(feedforward):
     stage.dt = np.float32(1e-3)
     out = ph.track(stage, ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedforward=feedforward,
                    feedback=ph.PID(ki=50.0, dt=1e-3))
-    assert out.e_max_percent < 10.0
+    # measured 0.61 % (noise-free stage, a feedforward fitted on it); a feedforward 5 % off in
+    # gain gives 2.1 % and 20 % off gives 5.1 %, so 1.5 % leaves the run a 2.5x margin
+    assert out.e_max_percent < 1.5
     with pytest.raises(ValueError, match="does not match the plant's dt"):
         ph.track(stage, ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedback=ph.PID(ki=50.0, dt=1.001e-3))
 
