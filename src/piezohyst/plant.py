@@ -46,6 +46,7 @@ identification run), a loop also holds a measurement that jumps further, for at 
 from __future__ import annotations
 
 import math
+import sys
 import warnings
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
@@ -639,14 +640,46 @@ class GuardedPlant:
 
     def back_to_rest(self) -> None:
         """After a run stopped part-way (an interrupt, a fault of the plant): ramp the command back
-        to the rest command, as every finished run ends, if the plant still answers (a plant that
-        fails again is left where it is; the error that stopped the run is the one reported)."""
+        to the rest command, as every finished run ends, if the plant still takes commands. The
+        error that stopped the run is the one reported; where the stage could not be brought to
+        rest, a note on it says where it was left (found by a helper: a plant failing at every
+        call, or a second Ctrl-C during the ramp, left the stage at 12-63 V without a word).
+
+        A plant whose readings fail (``step`` returning None, a string) still takes commands: the
+        ramp goes on without reading (its readings are not needed), so the stage comes to rest."""
         if self.mode != "step":
             return
+        stopped = sys.exception()  # (called while the error that stopped the run propagates)
+        start, rest = self.last, self.limits.rest
         try:
-            self.ramp_to(self.limits.rest)
-        except Exception:  # noqa: BLE001 - best effort after a fault; the first error propagates
+            self.ramp_to(rest)
+            return
+        except Exception:  # noqa: BLE001 - the ramp through the guard failed: on without reading, below
             pass
+        except BaseException as again:  # a second Ctrl-C: stop here, and say where the stage is
+            again.add_note(self._left_at(start, rest, "the ramp back to rest was interrupted"))
+            raise
+        table = self.limits.ramp(self.last, rest, self.dt, share=0.5)
+        why = ""
+        try:
+            for v in table:
+                try:
+                    self.plant.step(float(v))
+                except Exception as exc:  # noqa: BLE001 - the plant takes no more commands: it stays here
+                    said = " ".join(str(exc).split())[:120]
+                    why = f"the plant failed again ({type(exc).__name__}{': ' + said if said else ''})"
+                    break
+                self.last = float(v)
+                self.sent += 1
+        except BaseException as again:
+            again.add_note(self._left_at(start, rest, "the ramp back to rest was interrupted"))
+            raise
+        if why and stopped is not None:
+            stopped.add_note(self._left_at(start, rest, why))
+
+    def _left_at(self, start: float, rest: float, why: str) -> str:
+        return (f"the stage was NOT brought back to rest: the ramp from {start:.4g} V to the rest command "
+                f"{rest:.4g} V stopped at {self.last:.4g} V ({why}); the amplifier may hold {self.last:.4g} V")
 
     def ramp_to(self, target: float, *, share: float = 0.5) -> FloatArray:
         """Move the command smoothly from where it is to ``target`` (clipped to the range): a

@@ -110,12 +110,14 @@ def _flags(parser: argparse.ArgumentParser, command: str | None) -> dict[str, st
 
 
 def _message(exc: BaseException) -> str:
+    # what was added on the way (where a stage was left: GuardedPlant.back_to_rest) is said too
+    notes = "".join(f"; {one_line(n)}" for n in getattr(exc, "__notes__", ()) or ())
     if isinstance(exc, OSError) and not isinstance(exc, _user_errors()) and exc.filename:
-        return f"{exc.filename}: {exc.strerror or exc}"
+        return f"{exc.filename}: {exc.strerror or exc}{notes}"
     if isinstance(exc, MemoryError):
         return (f"not enough memory for this run ({one_line(exc) or 'MemoryError'}); ask for less (shorter "
-                "records, fewer parameters) or free memory")
-    return one_line(exc) or type(exc).__name__
+                f"records, fewer parameters) or free memory{notes}")
+    return (one_line(exc) or type(exc).__name__) + notes
 
 
 #: the signal that interrupted this run, if one did (set by the handlers below)
