@@ -338,3 +338,31 @@ def test_a_signal_handed_to_another_thread_waits_for_the_publish(signum):
         signal.signal(signal.SIGTERM, old)
     assert done == ["published"]
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handlers put back
+
+
+def test_a_handler_that_fires_while_the_handlers_are_put_back_leaves_none_swapped(monkeypatch):
+    """Found by a reviewer: signal.signal() runs the handlers of signals already pending before it
+    sets one, so a Ctrl-C handed to another thread just after SIGINT's handler was put back raised
+    out of the middle of the restoring: SIGTERM kept the block's noting handler for good (a process
+    `kill` no longer ended) and the signals stayed blocked. Simulated: the second putting-back
+    raises KeyboardInterrupt, as that pending handler would."""
+    import piezohyst._fileio as fio
+
+    real = signal.signal
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    calls = []
+
+    def signal_with_a_pending_interrupt(sig, handler):
+        calls.append(sig)
+        if len(calls) == 5:  # the second handler put back (three swapped on entry: INT, TERM, HUP)
+            raise KeyboardInterrupt
+        return real(sig, handler)
+
+    monkeypatch.setattr(fio.signal, "signal", signal_with_a_pending_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        with fio.deferred_signals():
+            pass
+    monkeypatch.setattr(fio.signal, "signal", real)
+    assert {s: signal.getsignal(s) for s in before} == before  # every handler back
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    assert signal.SIGINT not in blocked and signal.SIGTERM not in blocked

@@ -167,6 +167,22 @@ def test_sensor_resolution_of_continuous_readings_is_none():
     assert sensor_resolution(y) is None
     assert sensor_resolution(np.round(y, 4)) is None  # a file's 4 decimals: too many levels to tell
     assert sensor_resolution(np.r_[0.0, 1.0, 1.5, 3.7].repeat(10)) is None  # no common step
+    # a noise-free simulation of a periodic input repeats its values a period later, on a grid,
+    # but not from one sample to the next as a held count does (found by a reviewer)
+    triangle = 15.0 * np.abs(((np.arange(4000) / 200.0) % 2.0) - 1.0)
+    assert sensor_resolution(triangle) is None
+
+
+def test_sensor_resolution_through_a_files_decimals_and_float32():
+    """Found by a reviewer: a 12-bit converter's counts written with "%.6g" or stored as float32
+    lay off the float64 grid by more than the first tolerance, and no step was found."""
+    t = np.linspace(0.0, 1.0, 20_000)
+    counts = np.round((0.5 + 0.4 * np.sin(2 * np.pi * t)) * 4095)
+    volts = counts * (10.0 / 4095)
+    step = 10.0 / 4095
+    assert sensor_resolution(volts) == pytest.approx(step, rel=1e-9)
+    assert sensor_resolution(np.array([float(f"{v:.6g}") for v in volts])) == pytest.approx(step, rel=1e-5)
+    assert sensor_resolution(volts.astype(np.float32)) == pytest.approx(step, rel=1e-5)
 
 
 class _CountingPIStage:

@@ -544,6 +544,7 @@ def test_output_folder_through_a_symlink_and_errors_naming_the_users_files(tmp_p
             atomic_write_text(d / "r.csv", "x")  # an error of the project's own writer ...
             raise OSError(errno.ENOSPC, "No space left on device", str(d / "fig.png"))  # ... and of another's
     assert str(err.value) == f"cannot write {out / 'fig.png'}: No space left on device"
+    assert err.value.errno == errno.ENOSPC  # (kept: a caller may tell a full disk from the rest)
     with pytest.raises(OutputError) as err:
         with OutputFolder(out, ["r.csv"]) as d:
             def full(t):
@@ -551,6 +552,7 @@ def test_output_folder_through_a_symlink_and_errors_naming_the_users_files(tmp_p
             from piezohyst._fileio import atomic_write
             atomic_write(d / "r.csv", full)
     assert str(err.value) == f"cannot write {out / 'r.csv'}: No space left on device"
+    assert err.value.errno == errno.ENOSPC
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "results"]  # no temporary left
 
     long_name = "m" * 245 + ".json"  # 250 bytes: a legal name

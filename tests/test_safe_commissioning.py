@@ -534,7 +534,7 @@ def test_a_stage_left_away_from_rest_is_said_to_be():
     assert stage.commands[k] > lo + 0.05 * (hi - lo)  # stopped away from rest
     notes = " ".join(getattr(err.value, "__notes__", []))
     assert "NOT brought back to rest" in notes and "the plant failed again (OSError: link down at call" in notes, notes
-    at = float(notes.split("stopped at ")[1].split(" V")[0])
+    at = float(notes.split("stopped at the command ")[1].split(" V")[0])
     # the last command tried: the stage holds it or the one before, within a step of the one in flight
     assert at == pytest.approx(stage.commands[k], abs=0.02 * (hi - lo)) and at > lo + 0.05 * (hi - lo)
     # the command line says it too
@@ -595,7 +595,7 @@ def test_a_fault_inside_the_plants_own_excitation_says_the_stage_may_be_energise
     with pytest.raises(OSError, match="DAQ buffer underrun") as err:
         ph.commission(stage, tune=False)
     notes = " ".join(getattr(err.value, "__notes__", []))
-    assert "excite() stopped part-way" in notes and "bring the stage to its rest command (0 V)" in notes, notes
+    assert "excite() played the identification run" in notes and "bring the stage to its rest command (0 V)" in notes, notes
 
 
 class _InterruptedTwice(Recorder):
@@ -618,3 +618,54 @@ def test_a_second_interrupt_during_the_ramp_says_where_the_stage_is():
     notes = " ".join(getattr(err.value, "__notes__", []))
     assert "NOT brought back to rest" in notes and "the ramp back to rest was interrupted" in notes, notes
     assert stage.calls == 4010  # nothing sent after the second
+
+
+class _SticksFrom(Recorder):
+    """A stage whose sensor sticks at its ``at``-th call: every reading from then on is that one."""
+
+    def __init__(self, plant, at):
+        super().__init__(plant)
+        self.at, self.calls, self.value = at, 0, None
+
+    def _step(self, u):
+        self.calls += 1
+        y = super()._step(u)
+        if self.calls == self.at:
+            self.value = y
+        return self.value if self.calls >= self.at else y
+
+
+def test_a_stuck_sensor_stops_the_run():
+    """Found by a helper: a sensor stuck mid-run gave a tracking "result" (93.8 % e_max, the command
+    at its limit for 720 samples) with only a clipping warning. A reading that stays at exactly one
+    value while the command sweeps half the range stops the run (and the stage ramps to rest)."""
+    base = ResonantStage(seed=0, dt=2e-4)
+    stage = _SticksFrom(base, 10**9)
+    ctl = ph.commission(stage, tune=False)
+    y = np.asarray(ctl.identification.y)
+    ref = ph.sinusoid(2.0, 3, *np.percentile(y, [10, 90]), stage.dt)
+    stage.calls, stage.at = 0, 1500
+    with pytest.raises(ph.SensorDropoutError, match=r"stayed at exactly .* while the command moved over"):
+        ctl.track(ref, feedback=False, learning=False)
+    assert abs(stage.commands[-1]) < 1e-12  # back at rest
+    # the same through ph.track (the plant states its range)
+    stage.reset()
+    stage.calls, stage.at = 0, 1500
+    with pytest.raises(ph.SensorDropoutError, match="stayed at exactly"):
+        ph.track(stage, ref, ctl.feedforward())
+
+
+@pytest.mark.parametrize("excite", [False, True], ids=["stepped", "played by the plant"])
+def test_a_sensor_stuck_in_the_identification_run_is_named(excite):
+    """Found by a helper: stuck 0.3 s into the identification run, the sensor was taken for a slow
+    amplifier (an AmplifierSlewWarning, and the run played again for 50 s) before the constant
+    output was refused. It is named at once now."""
+    base = ResonantStage(seed=0, dt=2e-4)
+    stage = _SticksFrom(base, 1500)
+    if excite:
+        stage.excite = lambda u: ph.Dataset(np.arange(len(u)) * base.dt, np.asarray(u, float),
+                                            np.array([stage._step(v) for v in u]), {})
+    with pytest.raises(ph.SensorDropoutError, match=r"stayed at exactly .* from|stayed at exactly .* over samples"):
+        ph.commission(stage, tune=False)
+    one_run = ph.commissioning_excitation(base.dt, u_range=base.u_range).size
+    assert stage.calls <= one_run + 1000, (stage.calls, one_run)  # refused in the first run, not played again

@@ -160,9 +160,18 @@ class DeadSensor(LoggingStage):
 
 def test_a_dead_sensor_under_feedback_is_refused_not_tracked(feedforward):
     """With integral feedback the command ran to the range's end against a sensor stuck at 3 um and
-    ph.track returned as if it had tracked (found by fuzzing)."""
-    with pytest.raises(ValueError, match=r"did not move over the run \(it read 3 um throughout"):
+    ph.track returned as if it had tracked (found by fuzzing). The run is stopped as soon as the
+    command has swept half the range against the one reading (a helper's stuck sensor); without
+    the plant's range, at the end (the output did not move)."""
+    with pytest.raises(ph.SensorDropoutError, match=r"stayed at exactly 3 um since sample 0 .* while the command "
+                                                    r"moved over 0\.2\.\.100 V"):
         ph.track(DeadSensor(), ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedback=ph.PID(ki=50.0, dt=DT))
+
+    class DeadSensorNoRange(DeadSensor):
+        u_range = None
+
+    with pytest.raises(ValueError, match=r"did not move over the run \(it read 3 um throughout"):
+        ph.track(DeadSensorNoRange(), ph.sinusoid(2.0, 3, 4.0, 12.0, DT), feedback=ph.PID(ki=50.0, dt=DT))
 
 
 class InvertedSensor(LoggingStage):

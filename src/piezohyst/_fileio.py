@@ -156,10 +156,24 @@ def deferred_signals() -> Iterator[None]:
     try:
         yield
     finally:
-        for sig, handler in swapped.items():  # the handlers back first: what the mask held goes to them
-            signal.signal(sig, handler)
+        # the handlers back first, so that what the mask held goes to them. signal.signal() runs
+        # the handlers of signals already pending before it sets one, and one put back a moment
+        # ago may raise (a Ctrl-C handed to another thread just now): caught, that handler is set
+        # all the same (it was not), every other one too and the mask restored, then raised (a
+        # KeyboardInterrupt out of the middle of this left SIGTERM noted for good and the signals
+        # blocked: found by a reviewer)
+        raised: list[BaseException] = []
+        for sig, handler in swapped.items():
+            for _ in range(100):
+                try:
+                    signal.signal(sig, handler)
+                    break
+                except BaseException as exc:  # noqa: BLE001 - kept, and raised below
+                    raised.append(exc)
         if can:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        if raised:
+            raise raised[0]
         for n in dict.fromkeys(noted):
             signal.raise_signal(n)
 
@@ -247,6 +261,14 @@ def _remove(path: Path) -> None:
 
 # ------------------------------------------------------------------------------------------------
 # one file
+def _named(p: Path, exc: OSError) -> OutputError:
+    """``exc`` (raised writing a temporary file) as an error naming ``p``, the file the user asked
+    for, with its errno (a full disk stays ENOSPC to a caller)."""
+    out = OutputError(f"cannot write {p}: {exc.strerror or exc}")
+    out.errno = exc.errno
+    return out
+
+
 def _publish_file(tmp: Path, p: Path, force: bool) -> None:
     """Move the finished ``tmp`` to ``p``: replacing only with ``force``, else exclusively."""
     if force:
@@ -295,7 +317,7 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object], 
             if isinstance(exc, OutputError):
                 raise
             # name the file the user asked for, not the hidden temporary one
-            raise OutputError(f"cannot write {p}: {exc.strerror or exc}") from exc
+            raise _named(p, exc) from exc
         _chmod_ordinary(tmp)
         with deferred_signals():
             _publish_file(tmp, p, force)
@@ -335,7 +357,7 @@ def atomic_write_files(writes: dict[Path, Callable[[Path], object]], *, force: b
             except OSError as exc:
                 if isinstance(exc, OutputError):
                     raise
-                raise OutputError(f"cannot write {p}: {exc.strerror or exc}") from exc
+                raise _named(p, exc) from exc
             _chmod_ordinary(tmps[-1])
         moved: list[tuple[Path, Path | None]] = []  # (path, the name its previous content was moved to)
         with deferred_signals():
@@ -612,11 +634,15 @@ class OutputFolder:
             elif isinstance(exc, OSError):
                 # name the file the user will look for, not the hidden temporary folder
                 said = str(exc) if isinstance(exc, OutputError) else None
+                renamed: OutputError | None = None
                 if said is not None and str(tmp) in said:
-                    raise OutputError(said.replace(str(tmp), str(self.path))) from exc
+                    renamed = OutputError(said.replace(str(tmp), str(self.path)))
                 named = self._users_name(tmp, exc) if said is None else None
                 if named is not None:
-                    raise OutputError(f"cannot write {named}: {exc.strerror or exc}") from exc
+                    renamed = OutputError(f"cannot write {named}: {exc.strerror or exc}")
+                if renamed is not None:
+                    renamed.errno = exc.errno  # (ENOSPC stays visible to a caller; the original is its cause)
+                    raise renamed from exc
         finally:
             with deferred_signals():
                 _remove(tmp)

@@ -179,7 +179,7 @@ from .identify.monotone import (DEAD_BINS, WEAK_CORRELATION, DeadRange, DeadRang
                                 NotMonotoneWarning, dead_range, monotone_range, rising_part, butterfly_hint)
 from .models.base import Compensator, kind_class, kind_of
 from .plant import (CommandLimits, GuardedPlant, check_plant, check_table, checked_excitation,
-                    default_step_fraction, plant_mode, plant_u_range)
+                    default_step_fraction, plant_mode, plant_u_range, stuck_reading)
 from .signals import (estimate_period, mode_inverse, noise_e_max, second_order_filter,
                       sensor_noise_rms, sensor_resolution, sinusoid, transfer_peak_mode)
 
@@ -1885,11 +1885,12 @@ def commission(plant: Any, seed: int = 0, *, u_range: tuple[float, float] | None
             except BaseException as exc:
                 # the plant played the table itself: where it stopped, no command of ours says
                 # (found by a helper: a fault inside excite() left the stage at 76.6 V unsaid)
-                exc.add_note(f"{type(plant).__name__}.excite() stopped part-way through the identification run, whose "
-                             f"commands range over {float(sent.min()):.4g}..{float(sent.max()):.4g} V; piezohyst sent "
-                             f"no command of its own during it and cannot tell where it left the stage: bring the stage "
-                             f"to its rest command ({guard.limits.rest:.4g} V) before the next run")
+                exc.add_note(f"{type(plant).__name__}.excite() played the identification run (commands over "
+                             f"{float(sent.min()):.4g}..{float(sent.max()):.4g} V) and failed, or gave back no record of "
+                             f"it; piezohyst sent no command of its own during it and cannot tell where it left the "
+                             f"stage: bring the stage to its rest command ({guard.limits.rest:.4g} V) before the next run")
                 raise
+            stuck_reading(np.asarray(ds.u), np.asarray(ds.y), guard.limits.span, dt, f"the plant ({type(plant).__name__})")
         else:
             try:
                 y = guard.play(cmd)

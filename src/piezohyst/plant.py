@@ -185,10 +185,28 @@ SENSOR_DROPOUT_ALLOWANCE = 10
 #: A measurement that jumps further than a loop's ``max_jump`` in one sample is held for at most
 #: this many samples (a glitch); one still there after them is a new level, taken.
 GLITCH_HOLD_SAMPLES = 2
+#: A measurement that stays at exactly one value while the command moves over at least this share
+#: of the guarded range is a stuck (or saturated, or disconnected) sensor: no stage whose command
+#: sweeps half its range stands still, and a sensor with noise never repeats a value exactly
+#: (a coarse one does, but its count changes well within half the range). Found by a helper: a
+#: sensor stuck mid-run gave a tracking "result" of 93.8 % e_max, the command at its limit for
+#: 720 samples, with only a clipping warning; stuck during tuning, a verified gain.
+STUCK_COMMAND_SHARE = 0.5
+#: ... and it must stay so this long after the command got that far (s; at least
+#: :data:`STUCK_MIN_SAMPLES`): a stage read late (a buffered acquisition, a slow link) shows the
+#: old reading while the command moves on, for as long as it is late (found in the tests: a
+#: noise-free stage read 150 samples late).
+STUCK_AFTER_S = 0.25
+STUCK_MIN_SAMPLES = 250
+
+
+def _stuck_after(dt: float) -> int:
+    return max(STUCK_MIN_SAMPLES, int(round(STUCK_AFTER_S / dt)))
 
 
 class SensorDropoutError(RuntimeError):
-    """The plant's measurements went missing (NaN or inf) for too long or too often to go on."""
+    """The plant's measurements went missing (NaN or inf) for too long or too often to go on, or
+    stayed at one value while the command swept half the range (a stuck sensor)."""
 
 
 class SensorDropoutWarning(UserWarning):
@@ -216,9 +234,13 @@ class SensorDropouts:
     (1.0, 1.0, 2.0, 1)
     """
 
-    def __init__(self, dt: float, who: str, max_jump: float | None = None):
+    def __init__(self, dt: float, who: str, max_jump: float | None = None, u_span: float | None = None):
         self.dt = float(dt)
         self.who = who
+        # the stuck-sensor check (STUCK_COMMAND_SHARE), where the commands and their range are known
+        self._stuck_over = STUCK_COMMAND_SHARE * u_span if u_span is not None and u_span > 0 else None
+        self._stuck_wait = _stuck_after(self.dt)
+        self.restart_stuck()
         self.max_gap = _max_gap(self.dt)
         self.max_jump = max_jump if max_jump is not None and max_jump > 0 and math.isfinite(max_jump) else None
         self.count = 0
@@ -236,10 +258,13 @@ class SensorDropouts:
             self._held = float(y)
             self._gap = 0
 
-    def take(self, y: float) -> float:
-        """The measurement to use for sample ``y`` (the plant's answer, already a float)."""
+    def take(self, y: float, u: float | None = None) -> float:
+        """The measurement to use for sample ``y`` (the plant's answer, already a float); ``u``
+        the command it answered (for the stuck-sensor check, where the range was given)."""
         k = self.samples
         self.samples += 1
+        if u is not None and self._stuck_over is not None:
+            self._stuck(k, y, u)
         if math.isfinite(y):
             self._gap = 0
             if (self.max_jump is not None and self._held is not None and abs(y - self._held) > self.max_jump
@@ -282,6 +307,62 @@ class SensorDropouts:
                 f"sample {self.first}): more than {SENSOR_DROPOUT_SHARE:.0%} missing is a failing sensor. The run "
                 "stopped")
         return self._held
+
+
+    def restart_stuck(self) -> None:
+        """Forget the readings so far for the stuck-sensor check (the plant was reset)."""
+        self._same: float | None = None
+        self._same_since = 0
+        self._same_lo = self._same_hi = 0.0
+        self._armed: int | None = None
+
+    def _stuck(self, k: int, y: float, u: float) -> None:
+        """Raise :class:`SensorDropoutError` where ``y`` has stayed at one value while the commands
+        since it first read so moved over :data:`STUCK_COMMAND_SHARE` of the range, and for
+        :data:`STUCK_AFTER_S` since."""
+        if y != self._same:  # (NaN never equals: a dropout is not a stuck reading)
+            self._same, self._same_since, self._same_lo, self._same_hi, self._armed = y, k, u, u, None
+            return
+        self._same_lo, self._same_hi = min(self._same_lo, u), max(self._same_hi, u)
+        assert self._stuck_over is not None
+        if self._armed is None and self._same_hi - self._same_lo >= self._stuck_over:
+            self._armed = k
+        if self._armed is not None and k - self._armed >= self._stuck_wait:
+            raise SensorDropoutError(
+                f"{self.who}'s measurement has stayed at exactly {y:.6g} um since sample {self._same_since} "
+                f"(t = {self._same_since * self.dt:.6g} s of this run), {k - self._same_since + 1} samples, while the "
+                f"command moved over {self._same_lo:.4g}..{self._same_hi:.4g} V: a sensor stuck, saturated at the "
+                "end of its range, or disconnected? The run stopped")
+
+
+def stuck_reading(u: FloatArray, y: FloatArray, u_span: float, dt: float, who: str) -> None:
+    """Raise :class:`SensorDropoutError` where a played record's measurement stays at exactly one
+    value while its commands sweep :data:`STUCK_COMMAND_SHARE` of ``u_span`` (as
+    :class:`SensorDropouts` does sample by sample; a stuck sensor in an identification run was
+    taken for a slow amplifier and the run played again for 50 s: found by a helper)."""
+    if y.size < 2 or not u_span > 0:
+        return
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(y) != 0) + 1])
+    if starts.size == 1:
+        return  # one value throughout: a constant output, which the callers name as such
+    ends = np.concatenate([starts[1:], [y.size]])
+    hi = np.maximum.reduceat(u, starts)
+    lo = np.minimum.reduceat(u, starts)
+    top, bottom = float(np.max(y)), float(np.min(y))
+    wait = _stuck_after(dt)
+    for i in np.flatnonzero((hi - lo >= STUCK_COMMAND_SHARE * u_span) & (ends - starts > wait)):
+        k0, k1 = int(starts[i]), int(ends[i])
+        if y[k0] in (top, bottom):
+            continue  # held at the record's end: a clipped sensor or a dead range, which fit and commission name
+        seg = u[k0:k1]
+        far = np.maximum.accumulate(seg) - np.minimum.accumulate(seg) >= STUCK_COMMAND_SHARE * u_span
+        armed = int(np.argmax(far))
+        if k1 - k0 - armed <= wait:
+            continue  # still within the time a late reading takes to catch up
+        raise SensorDropoutError(
+            f"{who}'s measurement stayed at exactly {float(y[k0]):.6g} um over samples {k0}..{k1 - 1} (t = "
+            f"{k0 * dt:.6g} s of this run on), while the command moved over {float(lo[i]):.4g}..{float(hi[i]):.4g} V: "
+            "a sensor stuck, saturated at the end of its range, or disconnected? The run stopped")
 
 
 def bridge_dropouts(y: FloatArray, dt: float, who: str) -> tuple[FloatArray, int]:
@@ -556,7 +637,7 @@ class GuardedPlant:
         self.largest_step = 0.0
         self.last_saturation = 0
         self._tol = 1e-9 * limits.span
-        self.dropouts = SensorDropouts(self.dt, f"the plant ({type(plant).__name__})", max_jump)
+        self.dropouts = SensorDropouts(self.dt, f"the plant ({type(plant).__name__})", max_jump, limits.span)
         self.bridged = 0  # missing samples filled in played records
 
     @property
@@ -570,6 +651,7 @@ class GuardedPlant:
             raise TypeError("a plant that plays tables (BufferedPlant) cannot be reset; it keeps its state")
         self.plant.reset()
         self.last = self.limits.rest
+        self.dropouts.restart_stuck()
 
     def _guard(self, u: float) -> float:
         x = float(u)
@@ -617,7 +699,8 @@ class GuardedPlant:
         """Guard ``u`` and apply it for one sample (a :class:`Plant`); the measured µm."""
         if self.mode != "step":
             raise TypeError("this plant plays tables (BufferedPlant): it has no per-sample step")
-        return self.dropouts.take(measured(self.plant.step(self._guard(u))))
+        v = self._guard(u)
+        return self.dropouts.take(measured(self.plant.step(v)), v)
 
     def play(self, u: Any) -> FloatArray:
         """Guard the table ``u`` and play it (either protocol: a Plant steps through it); missing
@@ -634,6 +717,7 @@ class GuardedPlant:
             raise
         y, missing = bridge_dropouts(raw, self.dt, f"the plant ({type(self.plant).__name__})")
         self.bridged += missing
+        stuck_reading(sent, y, self.limits.span, self.dt, f"the plant ({type(self.plant).__name__})")
         if y.size:
             self.dropouts.hold(float(y[-1]))
         return y
@@ -674,12 +758,15 @@ class GuardedPlant:
         except BaseException as again:
             again.add_note(self._left_at(start, rest, "the ramp back to rest was interrupted"))
             raise
-        if why and stopped is not None:
+        if why:
+            if stopped is None:  # called on its own: the failure is the error
+                raise RuntimeError(self._left_at(start, rest, why))
             stopped.add_note(self._left_at(start, rest, why))
 
     def _left_at(self, start: float, rest: float, why: str) -> str:
         return (f"the stage was NOT brought back to rest: the ramp from {start:.4g} V to the rest command "
-                f"{rest:.4g} V stopped at {self.last:.4g} V ({why}); the amplifier may hold {self.last:.4g} V")
+                f"{rest:.4g} V stopped at the command {self.last:.4g} V ({why}); the amplifier holds it, or the "
+                f"command before it (within {self.limits.max_step:.3g} V)")
 
     def ramp_to(self, target: float, *, share: float = 0.5) -> FloatArray:
         """Move the command smoothly from where it is to ``target`` (clipped to the range): a

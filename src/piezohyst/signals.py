@@ -189,8 +189,15 @@ def sensor_noise_rms(y: Any) -> float:
 
 
 #: :func:`sensor_resolution` looks for a count only where each distinct reading recurs, on average,
-#: at least this often (a continuous reading, noise included, repeats almost no value).
+#: at least this often (a continuous reading, noise included, repeats almost no value) ...
 RESOLUTION_MIN_REPEATS = 4
+#: ... and at least this share of the readings repeat the one before (a count held while the stage
+#: moves within it; a noise-free simulation of a periodic input repeats its values a period later,
+#: not from one sample to the next: found by a reviewer, a sampled triangle read as "steps").
+RESOLUTION_MIN_HELD = 0.25
+#: Readings off the grid by up to this share of a step still lie on it (a file's decimals, float32
+#: storage: a 12-bit converter's counts written with "%.6g" were not found on their grid).
+RESOLUTION_TOLERANCE = 1e-3
 
 
 def sensor_resolution(y: Any) -> float | None:
@@ -211,18 +218,23 @@ def sensor_resolution(y: Any) -> float | None:
     True
     """
     x = as_signal("y", y, min_length=2)
-    x = x[np.isfinite(x)]
+    if np.mean(x[1:] == x[:-1]) < RESOLUTION_MIN_HELD:
+        return None
     levels = np.unique(x)
     if levels.size < 2 or levels.size * RESOLUTION_MIN_REPEATS > x.size:
         return None
-    gaps = np.diff(levels)
-    step = float(gaps.min())
-    # the scaling's rounding: a few units in the last place of the values, relative to the step
-    tol = 1e-6 * step + 16.0 * np.finfo(np.float64).eps * float(np.max(np.abs(levels)))
-    counts = np.round(gaps / step)
-    if not np.all(np.abs(gaps - counts * step) <= tol * np.maximum(counts, 1.0)):
-        return None
-    return float((levels[-1] - levels[0]) / float(counts.sum()))  # the mean step: rounding averaged out
+    with np.errstate(over="ignore", invalid="ignore"):
+        gaps = np.diff(levels)
+        if not np.all(np.isfinite(gaps)):
+            return None  # (a span beyond the float range)
+        step = float(gaps.min())
+        # the values' own rounding (their decimals in a file, float32): a share of the step, and a
+        # few units in the last place of the largest value
+        tol = RESOLUTION_TOLERANCE * step + 16.0 * np.finfo(np.float32).eps * float(np.max(np.abs(levels)))
+        counts = np.round(gaps / step)
+        if not np.all(np.abs(gaps - counts * step) <= tol * np.maximum(counts, 1.0)):
+            return None
+        return float((levels[-1] - levels[0]) / float(counts.sum()))  # the mean step: rounding averaged out
 
 
 def noise_e_max(sigma: float, samples: int) -> float:

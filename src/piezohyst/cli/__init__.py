@@ -86,8 +86,9 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from ..data import DataError
     from ..modelio import ModelFileError
     from .._validation import FitError
+    from ..plant import SensorDropoutError  # (the plant's sensor, not a bug)
 
-    return (UsageError, OutputError, DataError, ModelFileError, UnstableLoopError, FitError)
+    return (UsageError, OutputError, DataError, ModelFileError, UnstableLoopError, FitError, SensorDropoutError)
 
 
 def _flags(parser: argparse.ArgumentParser, command: str | None) -> dict[str, str]:

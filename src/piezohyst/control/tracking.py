@@ -555,8 +555,10 @@ def track(
     ff_step = feedforward.step if feedforward is not None else None
     fb_step = feedback.step if feedback is not None else None
     pstep = plant.step
-    dropouts = SensorDropouts(dt, f"the plant ({type(plant).__name__})")
+    dropouts = SensorDropouts(dt, f"the plant ({type(plant).__name__})",
+                              u_span=(rng[1] - rng[0]) if rng is not None else None)
     lo_u, hi_u = rng if (clip_here and rng is not None) else (-math.inf, math.inf)
+    rng_lo, rng_hi = rng if rng is not None else (-math.inf, math.inf)
     n_clip = 0
     for k in range(0 if not compiled else n, n):
         rk = r[k]
@@ -570,7 +572,9 @@ def track(
         sat = watch.command(k, uk)
         sent = lo_u if uk < lo_u else hi_u if uk > hi_u else uk
         n_clip += sent != uk
-        yk = dropouts.take(measured(pstep(sent)))
+        # (the stuck-sensor check takes the command the stage can follow: a plant that clips
+        # itself holds its end however far beyond it a diverging loop's commands go)
+        yk = dropouts.take(measured(pstep(sent)), min(max(sent, rng_lo), rng_hi))
         u[k] = uk
         y[k] = yk
         watch.output(k, yk, y)
