@@ -518,14 +518,20 @@ def test_a_persistent_fault_raises_the_error_that_stopped_the_run():
         ctl.track(ref, feedback=False, learning=False)
 
 
+def _commissioned_and_a_reference(stage, percentiles, cycles=2):
+    """``commission(stage, tune=False)`` and a 2 Hz reference between the ``percentiles`` of its
+    identification run's output (the runs the fault tests below break part-way)."""
+    ctl = ph.commission(stage, tune=False)
+    y = np.asarray(ctl.identification.y)
+    return ctl, ph.sinusoid(2.0, cycles, *np.percentile(y, percentiles), stage.dt)
+
+
 def test_a_stage_left_away_from_rest_is_said_to_be():
     """Found by a helper: a plant failing at every call from the N-th on (a link down), and a
     second Ctrl-C during the ramp back, left the stage at 12-63 V, and nothing said so. The error
     that stopped the run is still the one raised; a note on it says where the stage was left."""
     stage = _FailsFrom(ResonantStage(seed=0, dt=2e-4), 10**9, OSError("link down"))
-    ctl = ph.commission(stage, tune=False)
-    y = np.asarray(ctl.identification.y)
-    ref = ph.sinusoid(2.0, 2, *np.percentile(y, [30, 70]), stage.dt)
+    ctl, ref = _commissioned_and_a_reference(stage, [30, 70])
     stage.calls, stage.at, stage.persistent = 0, 3000, True
     with pytest.raises(OSError, match=r"^link down at call 3000\n") as err:
         ctl.track(ref, feedback=False, learning=False)
@@ -561,9 +567,7 @@ def test_a_stage_whose_readings_fail_is_still_ramped_to_rest():
     readings the guard checks, so the stage held 12.5 V. The ramp needs no reading: it goes on."""
     base = ResonantStage(seed=0, dt=2e-4)
     stage = _ReadsNoneFrom(base, 10**9)
-    ctl = ph.commission(stage, tune=False)
-    y = np.asarray(ctl.identification.y)
-    ref = ph.sinusoid(2.0, 2, *np.percentile(y, [30, 70]), stage.dt)
+    ctl, ref = _commissioned_and_a_reference(stage, [30, 70])
     stage.calls, stage.at = 0, 3000
     with pytest.raises(TypeError, match="returned None"):
         ctl.track(ref, feedback=False, learning=False)
@@ -641,9 +645,7 @@ def test_a_stuck_sensor_stops_the_run():
     value while the command sweeps half the range stops the run (and the stage ramps to rest)."""
     base = ResonantStage(seed=0, dt=2e-4)
     stage = _SticksFrom(base, 10**9)
-    ctl = ph.commission(stage, tune=False)
-    y = np.asarray(ctl.identification.y)
-    ref = ph.sinusoid(2.0, 3, *np.percentile(y, [10, 90]), stage.dt)
+    ctl, ref = _commissioned_and_a_reference(stage, [10, 90], cycles=3)
     stage.calls, stage.at = 0, 1500
     with pytest.raises(ph.SensorDropoutError, match=r"stayed at exactly .* while the command moved over"):
         ctl.track(ref, feedback=False, learning=False)
