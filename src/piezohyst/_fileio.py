@@ -304,28 +304,34 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object], 
     the ordinary mode ``0o666 & ~umask``.
     """
     p = check_output_file(path, force)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp: Path | None = None
+    tmps: list[Path] = []
     try:
-        with deferred_signals():  # a signal now would leave the temporary file unnamed
-            fd, name = tempfile.mkstemp(prefix=f".{_short(p.name)}.", suffix=".tmp", dir=p.parent)
-            os.close(fd)
-            tmp = Path(name)
-        try:
-            write(tmp)
-        except OSError as exc:
-            if isinstance(exc, OutputError):
-                raise
-            # name the file the user asked for, not the hidden temporary one
-            raise _named(p, exc) from exc
-        _chmod_ordinary(tmp)
+        _write_beside(p, write, tmps)
         with deferred_signals():
-            _publish_file(tmp, p, force)
+            _publish_file(tmps[0], p, force)
     finally:
-        if tmp is not None:
-            with deferred_signals():
+        with deferred_signals():
+            for tmp in tmps:
                 tmp.unlink(missing_ok=True)
     return p
+
+
+def _write_beside(p: Path, write: Callable[[Path], object], tmps: list[Path]) -> None:
+    """``write`` a temporary file beside ``p`` (its folder created if needed), appended to ``tmps``
+    as soon as it exists (the caller removes it), with the ordinary mode; an error of the write
+    names ``p``, the file the user asked for, not the hidden temporary one."""
+    p.parent.mkdir(parents=True, exist_ok=True)
+    with deferred_signals():  # a signal now would leave the temporary file unnamed
+        fd, name = tempfile.mkstemp(prefix=f".{_short(p.name)}.", suffix=".tmp", dir=p.parent)
+        os.close(fd)
+        tmps.append(Path(name))
+    try:
+        write(tmps[-1])
+    except OSError as exc:
+        if isinstance(exc, OutputError):
+            raise
+        raise _named(p, exc) from exc
+    _chmod_ordinary(tmps[-1])
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str, *, force: bool = False) -> Path:
@@ -347,18 +353,7 @@ def atomic_write_files(writes: dict[Path, Callable[[Path], object]], *, force: b
     tmps: list[Path] = []
     try:
         for p, write in zip(paths, writes.values()):
-            p.parent.mkdir(parents=True, exist_ok=True)
-            with deferred_signals():
-                fd, name = tempfile.mkstemp(prefix=f".{_short(p.name)}.", suffix=".tmp", dir=p.parent)
-                os.close(fd)
-                tmps.append(Path(name))
-            try:
-                write(tmps[-1])
-            except OSError as exc:
-                if isinstance(exc, OutputError):
-                    raise
-                raise _named(p, exc) from exc
-            _chmod_ordinary(tmps[-1])
+            _write_beside(p, write, tmps)
         moved: list[tuple[Path, Path | None]] = []  # (path, the name its previous content was moved to)
         with deferred_signals():
             try:
@@ -633,13 +628,14 @@ class OutputFolder:
                 self._publish(tmp)
             elif isinstance(exc, OSError):
                 # name the file the user will look for, not the hidden temporary folder
-                said = str(exc) if isinstance(exc, OutputError) else None
                 renamed: OutputError | None = None
-                if said is not None and str(tmp) in said:
-                    renamed = OutputError(said.replace(str(tmp), str(self.path)))
-                named = self._users_name(tmp, exc) if said is None else None
-                if named is not None:
-                    renamed = OutputError(f"cannot write {named}: {exc.strerror or exc}")
+                if isinstance(exc, OutputError):  # the project's own message, naming the temporary path
+                    if str(tmp) in str(exc):
+                        renamed = OutputError(str(exc).replace(str(tmp), str(self.path)))
+                else:
+                    named = self._users_name(tmp, exc)
+                    if named is not None:
+                        renamed = _named(named, exc)
                 if renamed is not None:
                     renamed.errno = exc.errno  # (ENOSPC stays visible to a caller; the original is its cause)
                     raise renamed from exc

@@ -1324,9 +1324,10 @@ def _identify_locked(pd: Any, records: list[tuple[str, Path]], out_dir: Path | N
             if cluster is not None:
                 cluster.close()
     df = pd.DataFrame.from_records([rows[n] for n, _ in records], columns=list(COLUMNS))
-    df = batch_statistics(df, threshold=outlier_mads).table
+    stats = batch_statistics(df, threshold=outlier_mads)
+    df = stats.table
     if out_dir is not None:
-        figure = _histogram_figure(df, outlier_mads) if histograms else None
+        figure = _histogram_figure(stats, outlier_mads) if histograms else None
         try:
             write_summary(df, out_dir, force=force, figure=figure)
         finally:
@@ -1415,9 +1416,9 @@ def write_summary(df: Any, out: str | os.PathLike[str], *, force: bool = False, 
     return atomic_write_files(writes, force=True)
 
 
-def _histogram_figure(df: Any, outlier_mads: float) -> Any:
+def _histogram_figure(stats: "BatchStatistics", outlier_mads: float) -> Any:
     """The batch's histograms (:func:`plot_histograms`) under a title saying what they show."""
-    stats = batch_statistics(df, threshold=outlier_mads)
+    df = stats.table
     drawn = stats.plot()
     figure = next(iter(drawn.values()))["ax"].figure
     figure.suptitle(f"{int((df['status'] == 'ok').sum())} actuators identified ({df['kind'].iloc[0]}); "

@@ -308,7 +308,6 @@ class SensorDropouts:
                 "stopped")
         return self._held
 
-
     def restart_stuck(self) -> None:
         """Forget the readings so far for the stuck-sensor check (the plant was reset)."""
         self._same: float | None = None
@@ -735,18 +734,14 @@ class GuardedPlant:
             return
         stopped = sys.exception()  # (called while the error that stopped the run propagates)
         start, rest = self.last, self.limits.rest
-        try:
-            self.ramp_to(rest)
-            return
-        except Exception:  # noqa: BLE001 - the ramp through the guard failed: on without reading, below
-            pass
-        except BaseException as again:  # a second Ctrl-C: stop here, and say where the stage is
-            again.add_note(self._left_at(start, rest, "the ramp back to rest was interrupted"))
-            raise
-        table = self.limits.ramp(self.last, rest, self.dt, share=0.5)
         why = ""
         try:
-            for v in table:
+            try:
+                self.ramp_to(rest)
+                return
+            except Exception:  # noqa: BLE001 - the ramp through the guard failed: on without reading
+                pass
+            for v in self.limits.ramp(self.last, rest, self.dt, share=0.5):
                 try:
                     self.plant.step(float(v))
                 except Exception as exc:  # noqa: BLE001 - the plant takes no more commands: it stays here
@@ -755,7 +750,9 @@ class GuardedPlant:
                     break
                 self.last = float(v)
                 self.sent += 1
-        except BaseException as again:
+        except Exception:
+            raise
+        except BaseException as again:  # a second Ctrl-C: stop here, and say where the stage is
             again.add_note(self._left_at(start, rest, "the ramp back to rest was interrupted"))
             raise
         if why:
